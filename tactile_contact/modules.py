@@ -93,3 +93,22 @@ def place_channels(
     t = np.deg2rad(rotation_deg)
     rot = np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
     return xy @ rot.T + np.asarray(position_m, dtype=np.float64)
+
+
+def taxel_id(board: int, triangle: int, channel: int) -> int:
+    """Bus-unique integer id of one channel: ``board << 8 | triangle << 4 | channel``.
+
+    Board 0..15, triangle 0..15, channel 0..11 (DESIGN.md §6 addressing). Messages carry this id
+    so that a consumer can map readings to bundle taxels without knowing the module order.
+    """
+    if not (0 <= board <= 15 and 0 <= triangle <= 15 and 0 <= channel < CHANNELS_PER_MODULE):
+        raise ValueError(
+            f"taxel address out of range: board {board} (0..15), triangle {triangle} (0..15), "
+            f"channel {channel} (0..{CHANNELS_PER_MODULE - 1})"
+        )
+    return (board << 8) | (triangle << 4) | channel
+
+
+def split_taxel_id(tid: int) -> tuple[int, int, int]:
+    """Inverse of :func:`taxel_id`: (board, triangle, channel)."""
+    return (tid >> 8) & 0xF, (tid >> 4) & 0xF, tid & 0xF
