@@ -42,6 +42,7 @@ class ModuleType:
         return np.asarray(self.taxel, dtype=bool)
 
 
+# fmt: off
 ROBOSKIN12 = ModuleType(
     name="roboskin12",
     channel_xy_mm=(
@@ -63,6 +64,8 @@ ICUB_V2_10PAD = ModuleType(
     taxel=(True,) * 6 + (False,) + (True,) * 3 + (False,) + (True,),
     pitch_mm=6.533,
 )
+
+# fmt: on
 
 MODULE_TYPES: dict[str, ModuleType] = {m.name: m for m in (ROBOSKIN12, ICUB_V2_10PAD)}
 

@@ -1,0 +1,63 @@
+"""Shared test configuration: hypothesis profiles and real-ROS fixtures.
+
+ROS tests talk over real DDS. Discovery stays on this machine and on a domain of its own so
+that parallel runs and other ROS users do not see each other's topics.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+os.environ.setdefault("ROS_DOMAIN_ID", str(17 + os.getpid() % 80))
+
+from collections.abc import Iterator
+
+import pytest
+from hypothesis import HealthCheck, settings
+
+settings.register_profile(
+    "default",
+    deadline=None,
+    max_examples=60,
+    suppress_health_check=[HealthCheck.too_slow],
+)
+settings.register_profile("thorough", deadline=None, max_examples=1000)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
+
+
+def _ros_available() -> str | None:
+    """None when rclpy and the package messages import, else the reason they do not."""
+    try:
+        import rclpy  # noqa: F401
+
+        from tactile_contact.msg import ContactState  # noqa: F401
+    except Exception as exc:  # any import failure means: no ROS here
+        return f"rclpy or tactile_contact.msg not importable ({exc!r}); run `make ros`"
+    return None
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    reason = _ros_available()
+    if reason is None:
+        return
+    if os.environ.get("TACTILE_REQUIRE_ROS") == "1":
+        raise pytest.UsageError(f"TACTILE_REQUIRE_ROS=1 but {reason}")
+    skip = pytest.mark.skip(reason=reason)
+    for item in items:
+        if "ros" in item.keywords:
+            item.add_marker(skip)
+
+
+@pytest.fixture
+def ros_context() -> Iterator[object]:
+    """A fresh rclpy context for one test, shut down afterwards."""
+    import rclpy
+    from rclpy.context import Context
+
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        yield context
+    finally:
+        rclpy.shutdown(context=context)
