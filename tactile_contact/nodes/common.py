@@ -1,0 +1,173 @@
+"""Small helpers shared by the package's nodes: QoS, stamps, parameters, diagnostics.
+
+Everything here is a thin convenience over rclpy; no node logic lives in this module.
+
+- :data:`SENSOR_QOS` for high-rate streams, :data:`STATIC_QOS` for data published once,
+  :data:`DIAGNOSTICS_QOS` for ``/diagnostics``.
+- :func:`stamp_from_seconds` / :func:`seconds_from_stamp`: python-can float seconds ↔
+  ``builtin_interfaces/Time``.
+- :func:`declare_parameter`: declare with a descriptor (description, unit, range or choices) and
+  return the value; out-of-range or unknown choices are rejected at declaration and on later sets.
+- :func:`log_parameters`: one info line per parameter, at start.
+- :func:`diagnostic_status`: a ``DiagnosticStatus`` from a name, level, message and key/values.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+
+#: High-rate streams (taxels, grids): best effort, keep last 5, volatile (the ROS sensor profile).
+SENSOR_QOS: QoSProfile = qos_profile_sensor_data
+
+#: Data published once or rarely (geometry, layouts): reliable, transient local, keep last 1, so a
+#: late subscriber still receives it.
+STATIC_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+
+#: ``/diagnostics`` as diagnostic_updater publishes it: reliable, volatile, keep last 10.
+DIAGNOSTICS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+
+#: Diagnostic levels as plain ints (the message stores them as one byte).
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
+
+
+def stamp_from_seconds(seconds: float) -> Time:
+    """``builtin_interfaces/Time`` from float seconds (python-can ``Message.timestamp``).
+
+    Rounded to the nearest nanosecond; negative or non-finite input raises ValueError (a stamp
+    before the epoch is never a receive time).
+    """
+    if not math.isfinite(seconds) or seconds < 0.0:
+        raise ValueError(f"stamp seconds must be finite and >= 0, got {seconds!r}")
+    total_ns = round(seconds * 1e9)
+    return Time(sec=total_ns // 1_000_000_000, nanosec=total_ns % 1_000_000_000)
+
+
+def seconds_from_stamp(stamp: Time) -> float:
+    """Float seconds of a ``builtin_interfaces/Time``."""
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+#: Sentinel default for a string-array parameter whose default is empty (rclpy cannot infer the
+#: type of ``[]``).
+STRING_ARRAY_EMPTY: Any = object()
+
+_CHOICES_ATTR = "_tactile_contact_parameter_choices"
+
+
+def _check_choices(node: Node, params: Sequence[Parameter]) -> SetParametersResult:
+    choices: dict[str, tuple[str, ...]] = getattr(node, _CHOICES_ATTR)
+    for p in params:
+        allowed = choices.get(p.name)
+        if allowed is not None and p.value not in allowed:
+            return SetParametersResult(
+                successful=False,
+                reason=f"{p.name}={p.value!r} is not one of {', '.join(allowed)}",
+            )
+    return SetParametersResult(successful=True)
+
+
+def declare_parameter(
+    node: Node,
+    name: str,
+    default: Any,
+    description: str,
+    *,
+    unit: str = "",
+    int_range: tuple[int, int] | None = None,
+    float_range: tuple[float, float] | None = None,
+    choices: Sequence[str] | None = None,
+    read_only: bool = False,
+) -> Any:
+    """Declare ``name`` with a descriptor and return its value (override or ``default``).
+
+    Args:
+        node: the node owning the parameter.
+        name: parameter name.
+        default: default value; its Python type fixes the parameter type. rclpy cannot infer
+            the type of ``[]``: pass :data:`STRING_ARRAY_EMPTY` for an empty string array.
+        description: what the parameter does; ``unit`` is appended as ``[unit]``.
+        int_range / float_range: inclusive (low, high) bounds enforced by rclpy on declaration and
+            on every later set.
+        choices: allowed values of a string parameter, enforced the same way.
+        read_only: rclpy refuses later sets.
+
+    Raises:
+        rclpy.exceptions.InvalidParameterValueException: the override is out of range or not
+            one of ``choices``.
+    """
+    text = f"{description} [{unit}]" if unit else description
+    descriptor = ParameterDescriptor(name=name, description=text, read_only=read_only)
+    if int_range is not None:
+        descriptor.integer_range = [
+            IntegerRange(from_value=int(int_range[0]), to_value=int(int_range[1]), step=1)
+        ]
+    if float_range is not None:
+        descriptor.floating_point_range = [
+            FloatingPointRange(
+                from_value=float(float_range[0]), to_value=float(float_range[1]), step=0.0
+            )
+        ]
+    if choices is not None:
+        descriptor.additional_constraints = f"one of: {', '.join(choices)}"
+        if not hasattr(node, _CHOICES_ATTR):
+            setattr(node, _CHOICES_ATTR, {})
+            node.add_on_set_parameters_callback(lambda ps: _check_choices(node, ps))
+        getattr(node, _CHOICES_ATTR)[name] = tuple(choices)
+    if default is STRING_ARRAY_EMPTY:
+        value = node.declare_parameter(name, Parameter.Type.STRING_ARRAY, descriptor).value
+        return [] if value is None else list(value)
+    value = node.declare_parameter(name, default, descriptor).value
+    return list(value) if isinstance(value, (list, tuple)) else value
+
+
+def log_parameters(node: Node, names: Iterable[str]) -> None:
+    """Log ``name = value`` for each parameter, one line each (at start, for the record)."""
+    for name in names:
+        node.get_logger().info(f"parameter {name} = {node.get_parameter(name).value!r}")
+
+
+def diagnostic_status(
+    name: str,
+    level: int,
+    message: str,
+    values: Mapping[str, object],
+    hardware_id: str = "",
+) -> DiagnosticStatus:
+    """A ``DiagnosticStatus``; ``level`` is one of OK, WARN, ERROR, STALE; values become strings.
+
+    Floats are written with 6 significant digits, everything else with ``str``.
+    """
+    if level not in (OK, WARN, ERROR, STALE):
+        raise ValueError(f"diagnostic level must be 0..3 (OK, WARN, ERROR, STALE), got {level!r}")
+    kvs = [
+        KeyValue(key=str(k), value=f"{v:.6g}" if isinstance(v, float) else str(v))
+        for k, v in values.items()
+    ]
+    return DiagnosticStatus(
+        level=bytes([level]), name=name, message=message, hardware_id=hardware_id, values=kvs
+    )
