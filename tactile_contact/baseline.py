@@ -1,0 +1,368 @@
+"""Per-taxel baseline: calibration, drift tracking frozen in contact, tare, bad-taxel detection.
+
+The module value of an unloaded taxel (its *baseline*, in 8-bit counts) is learnt from the
+first ``calibration_samples`` readings, then follows slow drift (temperature, humidity) with an
+exponential filter of time constant ``drift_time_constant_s`` — but only where nothing touches
+the skin. Contact is detected per taxel on the *magnitude* of the deviation from the baseline
+(beside a small contact the layer bulges and taxels read negative, DESIGN.md §2), with
+hysteresis in level (``contact_on_counts`` / ``contact_off_counts``) and time (``release_s``);
+tracking is frozen on the taxels in contact, on every taxel within ``freeze_radius_m`` of one,
+and, with ``module_freeze``, on the whole module. A held contact therefore keeps its ΔC
+indefinitely (or for ``max_freeze_s`` if set), while drift without contact is followed.
+
+Output is ΔC [F] (positive = compression) through :mod:`tactile_contact.sensor`, and per-taxel
+status flags whose values match ``tactile_contact/msg/TaxelArray`` (plus STATUS_UNCALIBRATED).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from tactile_contact.sensor import DEFAULT_FARAD_PER_COUNT, DEFAULT_SHIFT, value_count_farad
+
+STATUS_OK = 0
+STATUS_DISABLED = 1
+STATUS_STUCK = 2
+STATUS_DEAD = 4
+STATUS_SATURATED = 8
+STATUS_OUT_OF_RANGE = 16
+STATUS_STALE = 32
+STATUS_CONTACT = 64
+STATUS_UNCALIBRATED = 128
+"""Not in TaxelArray.msg yet: the channel has not collected its calibration samples."""
+
+STATUS_NAMES = {
+    STATUS_DISABLED: "disabled",
+    STATUS_STUCK: "stuck",
+    STATUS_DEAD: "dead",
+    STATUS_SATURATED: "saturated",
+    STATUS_OUT_OF_RANGE: "out_of_range",
+    STATUS_STALE: "stale",
+    STATUS_CONTACT: "contact",
+    STATUS_UNCALIBRATED: "uncalibrated",
+}
+BAD_STATUS = STATUS_DISABLED | STATUS_STUCK | STATUS_DEAD | STATUS_SATURATED | STATUS_OUT_OF_RANGE
+_MAX_DT_S = 1.0  # a long silence must not let one sample pull the baseline all the way
+
+
+def status_names(status: int) -> list[str]:
+    """Names of the flags set in one status byte."""
+    return [name for bit, name in STATUS_NAMES.items() if status & bit]
+
+
+@dataclass(frozen=True)
+class BaselineConfig:
+    """Baseline tracking parameters (recommended driver defaults).
+
+    Attributes:
+        calibration_samples: unloaded readings averaged at start (and on recalibrate) [-].
+        drift_time_constant_s: time constant of the drift filter [s]; the gain per reading is
+            1 − exp(−dt/τ). Drift of r counts/s is followed with a lag of r·τ counts.
+        contact_on_counts: |baseline − value| at or above which a taxel is in contact [counts].
+        contact_off_counts: |deviation| below which a taxel may leave contact [counts].
+        release_s: time the deviation must stay below ``contact_off_counts`` to release [s].
+        freeze_radius_m: taxels within this distance of a contact are frozen too [m] (needs
+            positions; 0 freezes only the taxels in contact).
+        module_freeze: freeze the whole module when one of its taxels is in contact.
+        max_freeze_s: resume tracking after this long frozen [s] (None: never; a long-held
+            object then stays reported until tare).
+        stuck_timeout_s: a valid taxel whose value has not changed for this long is stuck [s]
+            (None: never).
+        dead_timeout_s: a taxel reading 0 for this long is dead [s].
+        tare_window: readings averaged by :meth:`BaselineTracker.tare` [-].
+    """
+
+    calibration_samples: int = 20
+    drift_time_constant_s: float = 30.0
+    contact_on_counts: float = 3.0
+    contact_off_counts: float = 2.0
+    release_s: float = 1.0
+    freeze_radius_m: float = 0.012
+    module_freeze: bool = True
+    max_freeze_s: float | None = None
+    stuck_timeout_s: float | None = 60.0
+    dead_timeout_s: float = 5.0
+    tare_window: int = 10
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.calibration_samples, int) and self.calibration_samples >= 1):
+            raise ValueError(
+                f"calibration_samples must be an int >= 1, got {self.calibration_samples!r}"
+            )
+        if not (isinstance(self.tare_window, int) and self.tare_window >= 1):
+            raise ValueError(f"tare_window must be an int >= 1, got {self.tare_window!r}")
+        for name in ("drift_time_constant_s", "contact_on_counts", "dead_timeout_s"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {v!r}")
+        for name in ("release_s", "freeze_radius_m", "contact_off_counts"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {v!r}")
+        if self.contact_off_counts > self.contact_on_counts:
+            raise ValueError(
+                f"contact_off_counts {self.contact_off_counts} exceeds contact_on_counts "
+                f"{self.contact_on_counts}"
+            )
+        for name in ("max_freeze_s", "stuck_timeout_s"):
+            v = getattr(self, name)
+            if v is not None and not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be None or finite and > 0, got {v!r}")
+
+
+@dataclass(frozen=True)
+class BaselineResult:
+    """Output of one :meth:`BaselineTracker.update`.
+
+    Attributes:
+        delta_c: (N,) capacitance change [F], positive = compression (0 where disabled or
+            uncalibrated). Never clipped.
+        deviation: (N,) baseline − value [8-bit counts].
+        status: (N,) uint8 STATUS_* flags.
+        contact: (N,) taxels in contact (hysteresis state).
+        frozen: (N,) taxels whose baseline is frozen this reading.
+        calibrated: every valid taxel has its calibration.
+    """
+
+    delta_c: NDArray[np.float64]
+    deviation: NDArray[np.float64]
+    status: NDArray[np.uint8]
+    contact: NDArray[np.bool_]
+    frozen: NDArray[np.bool_]
+    calibrated: bool
+
+
+class BaselineTracker:
+    """Baselines of the N channels of one patch (thermal pads and disabled channels included).
+
+    Args:
+        n_channels: N.
+        valid: (N,) True for real, enabled taxels (layout ``valid_mask``); default all.
+        module_index: (N,) module number of each channel (for ``module_freeze``); default
+            consecutive groups of 12.
+        positions: (N, 2) channel centres [m] (for ``freeze_radius_m``); None: no radius.
+        farad_per_count: gain of one CDC count [F] (scalar or (N,)).
+        shift: firmware shift [bits] (scalar or (N,)).
+        config: :class:`BaselineConfig`.
+    """
+
+    def __init__(
+        self,
+        n_channels: int,
+        *,
+        valid: ArrayLike | None = None,
+        module_index: ArrayLike | None = None,
+        positions: ArrayLike | None = None,
+        farad_per_count: ArrayLike = DEFAULT_FARAD_PER_COUNT,
+        shift: ArrayLike = DEFAULT_SHIFT,
+        config: BaselineConfig | None = None,
+    ) -> None:
+        if not (isinstance(n_channels, int) and n_channels >= 1):
+            raise ValueError(f"n_channels must be an int >= 1, got {n_channels!r}")
+        n = n_channels
+        self.n = n
+        self.config = cfg = config or BaselineConfig()
+        self.valid = self._mask("valid", valid, True)
+        mi = np.arange(n) // 12 if module_index is None else np.asarray(module_index)
+        if mi.shape != (n,):
+            raise ValueError(f"module_index must have shape ({n},), got {mi.shape}")
+        self._gain = np.broadcast_to(value_count_farad(farad_per_count, shift), (n,)).copy()
+        # Freeze neighbourhood as a 0/1 matrix: frozen = (nbr @ contact) > 0.
+        nbr = np.eye(n, dtype=bool)
+        if positions is not None:
+            p = np.asarray(positions, dtype=np.float64)
+            if p.shape != (n, 2) or not np.all(np.isfinite(p)):
+                raise ValueError(f"positions must be a finite ({n}, 2) array [m], got {p.shape}")
+            d = np.linalg.norm(p[:, None, :] - p[None, :, :], axis=-1)
+            nbr |= d <= cfg.freeze_radius_m
+        if cfg.module_freeze:
+            nbr |= mi[:, None] == mi[None, :]
+        self._nbr = nbr.astype(np.float64)
+        self._recent: deque[NDArray[np.float64]] = deque(maxlen=cfg.tare_window)
+        self.recalibrate()
+
+    def _mask(self, name: str, m: ArrayLike | None, default: bool) -> NDArray[np.bool_]:
+        if m is None:
+            return np.full(self.n, default)
+        a = np.asarray(m, dtype=bool)
+        if a.shape != (self.n,):
+            raise ValueError(f"{name} must have shape ({self.n},), got {a.shape}")
+        return a
+
+    # -- state control --------------------------------------------------------------------
+    def recalibrate(self) -> None:
+        """Forget the baselines and learn them again from the next readings (send unloaded)."""
+        n = self.n
+        self.baseline = np.zeros(n)
+        self._cal_sum = np.zeros(n)
+        self._cal_count = np.zeros(n, dtype=np.int64)
+        self._cal_zero = np.zeros(n, dtype=bool)
+        self._clear_dynamics()
+        self._last_value = np.full(n, -1, dtype=np.int64)
+        self._unchanged_s = np.zeros(n)
+        self._zero_s = np.zeros(n)
+        self._last_t = np.full(n, np.nan)
+        self._recent.clear()
+
+    def _clear_dynamics(self) -> None:
+        n = self.n
+        self.contact = np.zeros(n, dtype=bool)
+        self._quiet_since = np.full(n, np.inf)
+        self._frozen_since = np.full(n, np.inf)
+
+    def tare(self) -> bool:
+        """Make the current readings the baselines (mean of the last ``tare_window`` readings).
+
+        Clears the contact states. Returns False (and does nothing) before any reading.
+        """
+        if not self._recent:
+            return False
+        mean = np.mean(np.stack(self._recent), axis=0)
+        self.baseline = mean
+        done = self._cal_count < self.config.calibration_samples
+        self._cal_count[done] = self.config.calibration_samples
+        self._clear_dynamics()
+        return True
+
+    @property
+    def calibrated_mask(self) -> NDArray[np.bool_]:
+        """(N,) channels that have their calibration."""
+        return self._cal_count >= self.config.calibration_samples
+
+    @property
+    def calibrated(self) -> bool:
+        """All valid channels have their calibration."""
+        return bool(np.all(self.calibrated_mask[self.valid]))
+
+    # -- the update -----------------------------------------------------------------------
+    def update(
+        self,
+        raw: ArrayLike,
+        timestamp: float,
+        *,
+        fresh: ArrayLike | None = None,
+        out_of_range: ArrayLike | None = None,
+        module_error: ArrayLike | None = None,
+    ) -> BaselineResult:
+        """Process one reading of all N channels.
+
+        Args:
+            raw: (N,) module values [8-bit counts, 0..255].
+            timestamp: receive time [s] (monotonic within a tracker).
+            fresh: (N,) channels updated since the previous call (others are stale: their
+                baselines and timers are left alone); default all.
+            out_of_range: (N,) the module's out-of-range bits.
+            module_error: (N,) the module reported an I²C / connection error.
+        """
+        v = np.asarray(raw)
+        if v.shape != (self.n,):
+            raise ValueError(f"raw must have shape ({self.n},), got {v.shape}")
+        v = v.astype(np.float64)
+        if not np.all(np.isfinite(v)) or np.any((v < 0) | (v > 255)):
+            raise ValueError(f"raw values must be within 0..255, got range {v.min()}..{v.max()}")
+        if not np.isfinite(timestamp):
+            raise ValueError(f"timestamp must be finite, got {timestamp!r}")
+        cfg = self.config
+        fr = self._mask("fresh", fresh, True)
+        oor = self._mask("out_of_range", out_of_range, False)
+        err = self._mask("module_error", module_error, False)
+        t = float(timestamp)
+
+        dt = np.where(np.isnan(self._last_t), 0.0, t - self._last_t)
+        dt = np.clip(dt, 0.0, _MAX_DT_S)
+        dt[~fr] = 0.0
+        self._last_t[fr] = t
+        self._recent.append(v.copy())
+
+        sat = (v <= 0) | (v >= 255)
+        usable = fr & self.valid & ~sat & ~oor & ~err
+
+        # Calibration: plain mean of the first samples of every channel.
+        cal_before = self.calibrated_mask
+        learn = fr & ~cal_before & ~err
+        self._cal_sum[learn] += v[learn]
+        self._cal_count[learn] += 1
+        self._cal_zero[learn] |= v[learn] == 0
+        just = learn & self.calibrated_mask
+        self.baseline[just] = self._cal_sum[just] / self._cal_count[just]
+        cal = self.calibrated_mask
+
+        dev = np.where(cal, self.baseline - v, 0.0)
+        mag = np.abs(dev)
+        active = cal & self.valid & fr
+        # Level hysteresis with a release delay.
+        on = active & (mag >= cfg.contact_on_counts)
+        quiet = active & (mag < cfg.contact_off_counts)
+        self._quiet_since[quiet & np.isinf(self._quiet_since)] = t
+        self._quiet_since[active & ~quiet] = np.inf
+        released = self.contact & quiet & (t - self._quiet_since >= cfg.release_s)
+        self.contact = (self.contact | on) & ~released & self.valid
+
+        frozen = (self._nbr @ self.contact.astype(np.float64)) > 0.0
+        self._frozen_since[frozen & np.isinf(self._frozen_since)] = t
+        self._frozen_since[~frozen] = np.inf
+        hold = frozen
+        if cfg.max_freeze_s is not None:
+            hold = frozen & (t - self._frozen_since <= cfg.max_freeze_s)
+        track = usable & cal & ~hold & ~just
+        alpha = -np.expm1(-dt / cfg.drift_time_constant_s)
+        self.baseline[track] += alpha[track] * (v[track] - self.baseline[track])
+
+        # Fault timers count time of fresh readings only, so a silent module is stale, not stuck.
+        same = fr & (v == self._last_value)
+        self._unchanged_s[same] += dt[same]
+        self._unchanged_s[fr & ~same] = 0.0
+        self._last_value[fr] = v[fr].astype(np.int64)
+        zero = fr & (v == 0)
+        self._zero_s[zero] += dt[zero]
+        self._zero_s[fr & ~zero] = 0.0
+
+        status = np.zeros(self.n, dtype=np.uint8)
+        status[~self.valid] |= STATUS_DISABLED
+        if cfg.stuck_timeout_s is not None:
+            status[self.valid & (self._unchanged_s > cfg.stuck_timeout_s)] |= STATUS_STUCK
+        dead = err | (self._zero_s > cfg.dead_timeout_s) | (cal & self._cal_zero)
+        status[dead] |= STATUS_DEAD
+        status[sat] |= STATUS_SATURATED
+        status[oor] |= STATUS_OUT_OF_RANGE
+        status[~fr] |= STATUS_STALE
+        status[self.contact] |= STATUS_CONTACT
+        status[~cal] |= STATUS_UNCALIBRATED
+
+        out = cal & self.valid
+        delta_c = np.where(out, dev * self._gain, 0.0)
+        self._last_status = status
+        return BaselineResult(
+            delta_c=delta_c,
+            deviation=dev,
+            status=status,
+            contact=self.contact.copy(),
+            frozen=frozen,
+            calibrated=bool(np.all(cal[self.valid])),
+        )
+
+    # -- diagnostics ----------------------------------------------------------------------
+    def bad_taxels(self) -> dict[int, list[str]]:
+        """Channel index → reasons, for every valid channel flagged bad in the last update."""
+        st = getattr(self, "_last_status", None)
+        if st is None:
+            return {}
+        out: dict[int, list[str]] = {}
+        for i in np.flatnonzero(self.valid & (st & BAD_STATUS != 0)):
+            reasons = []
+            s = int(st[i])
+            if s & STATUS_DEAD:
+                why = "reads 0 at rest" if self._cal_zero[i] else "module error or reads 0"
+                reasons.append(f"dead ({why})")
+            if s & STATUS_STUCK:
+                reasons.append(f"stuck (unchanged for {self._unchanged_s[i]:.0f} s)")
+            if s & STATUS_SATURATED:
+                reasons.append(f"saturated (value {self._last_value[i]})")
+            if s & STATUS_OUT_OF_RANGE:
+                reasons.append("out of range (module flag)")
+            out[int(i)] = reasons
+        return out
