@@ -174,8 +174,8 @@ def delta_c_to_compression(
     k = EPSILON_0 * _positive("epsilon_r", epsilon_r) * _positive("area", area)
     den = k + dc * h
     if np.any(den <= 0.0):
-        bad = np.broadcast_to(dc, den.shape)[den <= 0.0].ravel()[0]
-        limit = np.max(np.broadcast_to(-k / h, den.shape)[den <= 0.0])
+        bad = float(np.broadcast_to(dc, den.shape)[den <= 0.0].ravel()[0])
+        limit = float(np.max(np.broadcast_to(-k / h, den.shape)[den <= 0.0]))
         raise ValueError(
             f"delta_c {bad!r} F is at or below -C0 = {limit!r} F: the capacitance would be <= 0"
         )
@@ -195,8 +195,8 @@ def compression_to_delta_c(
     k = EPSILON_0 * _positive("epsilon_r", epsilon_r) * _positive("area", area)
     gap = h - d
     if np.any(gap <= 0.0):
-        bad = np.broadcast_to(d, gap.shape)[gap <= 0.0].ravel()[0]
-        raise ValueError(f"compression {bad!r} m is not below the thickness {np.max(h)!r} m")
+        bad = float(np.broadcast_to(d, gap.shape)[gap <= 0.0].ravel()[0])
+        raise ValueError(f"compression {bad!r} m is not below the thickness {float(np.max(h))!r} m")
     return k * d / (h * gap)
 
 
