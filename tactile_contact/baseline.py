@@ -77,7 +77,7 @@ class BaselineConfig:
     """
 
     calibration_samples: int = 20
-    drift_time_constant_s: float = 30.0
+    drift_time_constant_s: float = 20.0
     contact_on_counts: float = 3.0
     contact_off_counts: float = 2.0
     release_s: float = 1.0
