@@ -140,7 +140,10 @@ def declare_parameter(
         getattr(node, _CHOICES_ATTR)[name] = tuple(choices)
     if default is STRING_ARRAY_EMPTY:
         value = node.declare_parameter(name, Parameter.Type.STRING_ARRAY, descriptor).value
-        return [] if value is None else list(value)
+        if value is None:  # no override: give it a typed empty value so get_parameter works
+            node.set_parameters([Parameter(name, Parameter.Type.STRING_ARRAY, [])])
+            return []
+        return list(value)
     value = node.declare_parameter(name, default, descriptor).value
     return list(value) if isinstance(value, (list, tuple)) else value
 

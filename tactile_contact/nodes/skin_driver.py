@@ -1,0 +1,470 @@
+"""``skin_driver``: ROBOSKIN module frames from a CAN bus → per-patch taxel ΔC messages.
+
+A thin lifecycle adapter over the core library (docs/driver.md has the full description):
+
+- configure: load the patch layout, build the period assembler and per-patch baselines, open
+  the bus (python-can from parameters, or a candump log replayed at recorded pace); a bus that
+  cannot be opened is logged and reported as FAILURE.
+- activate: optionally send the board configuration, start the receive thread; publish
+  ``<patch>/taxels`` (TaxelArray, sensor-data QoS) whenever every live module of a patch has
+  a new reading or ``max_wait_ms`` has passed (modules without a new reading flagged STALE).
+- while configured: ``~/tare`` (std_srvs/Trigger) and ``/diagnostics`` every
+  ``diagnostics_period_s``.
+
+With ``autostart`` (default) the node configures and activates itself, so it runs without a
+lifecycle manager. The receive thread never raises: bus errors are counted, warned about at
+most every few seconds, and ``reconnect_after_errors`` consecutive errors close and reopen the
+bus; bad frames are counted per reason by the assembler.
+
+The ROS-free part (bus opening, log replay, gathering module readings into patch messages)
+lives in :mod:`tactile_contact.nodes.skin_stream`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import can
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.publisher import Publisher
+from rclpy.timer import Timer
+from std_srvs.srv import Trigger
+
+from tactile_contact import codec
+from tactile_contact.baseline import BaselineConfig
+from tactile_contact.layout import load_layout
+from tactile_contact.msg import TaxelArray
+from tactile_contact.nodes import common as cm
+from tactile_contact.nodes.skin_stream import BusErrorPolicy, PatchFrame, SkinStream, open_bus
+
+WARN_THROTTLE_S = 5.0
+SUCCESS = TransitionCallbackReturn.SUCCESS
+FAILURE = TransitionCallbackReturn.FAILURE
+
+
+def default_layout_path() -> Path:
+    """The package's ``config/hexagon_patch.yaml`` (installed share, else the source tree)."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        path = Path(get_package_share_directory("tactile_contact")) / "config/hexagon_patch.yaml"
+        if path.is_file():
+            return path
+    except Exception:  # not installed through ament: fall back to the source tree
+        pass
+    return Path(__file__).resolve().parents[2] / "config" / "hexagon_patch.yaml"
+
+
+# (name, default, description, options for common.declare_parameter); docs/driver.md mirrors it.
+# fmt: off
+PARAMETERS: tuple[tuple[str, Any, str, dict[str, Any]], ...] = (
+    ("autostart", True, "configure and activate at start (no lifecycle manager needed)", {}),
+    ("layout", "", "patch layout YAML; empty = the package's config/hexagon_patch.yaml", {}),
+    ("patches", cm.STRING_ARRAY_EMPTY, "patches to publish; empty = all of the layout", {}),
+    ("interface", "socketcan", "python-can interface (socketcan, virtual, ...)", {}),
+    ("channel", "can0", "python-can channel", {}),
+    ("bitrate", 1_000_000, "bit rate for interfaces that set it; 0 = leave as is",
+     {"unit": "bit/s", "int_range": (0, 1_000_000)}),
+    ("replay_file", "", "candump .log replayed at recorded pace instead of a live bus", {}),
+    ("replay_max_gap_s", 1.0, "longer gaps in the replayed log are shortened to this",
+     {"unit": "s", "float_range": (0.01, 60.0)}),
+    ("accept_class3", False, "also accept class 3 ids (0x3xx, older firmware)", {}),
+    ("receive_timeout_s", 0.02, "bus receive timeout (bounds the max-wait check delay)",
+     {"unit": "s", "float_range": (0.001, 1.0)}),
+    ("reconnect_after_errors", 5, "consecutive bus errors that trigger a reconnect",
+     {"int_range": (1, 100_000)}),
+    ("reconnect_interval_s", 1.0, "wait between reconnect attempts",
+     {"unit": "s", "float_range": (0.01, 60.0)}),
+    ("stamp_source", "can", "header.stamp: CAN receive time or publication time",
+     {"choices": ("can", "now")}),
+    ("period_ms", 50, "nominal module period (drop estimate; SET_BRD_CFG)",
+     {"unit": "ms", "int_range": (1, 255)}),
+    ("max_wait_ms", 50.0, "publish a patch this long after its first new module reading",
+     {"unit": "ms", "float_range": (1.0, 10_000.0)}),
+    ("module_timeout_ms", 500.0, "a module silent this long is not waited for (silent)",
+     {"unit": "ms", "float_range": (1.0, 600_000.0)}),
+    ("pair_window_ms", 10.0, "largest frame A to frame B gap of one period",
+     {"unit": "ms", "float_range": (0.0, 1000.0)}),
+    ("duplicate_window_ms", 5.0, "identical frames closer than this are duplicates",
+     {"unit": "ms", "float_range": (0.0, 1000.0)}),
+    ("strict_status", False, "reject frames B with reserved status bits set", {}),
+    ("farad_per_count", 0.0, "gain of one CDC count; 0 = the layout's sensor value",
+     {"unit": "F", "float_range": (0.0, 1e-12)}),
+    ("calibration_samples", 20, "unloaded readings averaged at start",
+     {"int_range": (1, 100_000)}),
+    ("drift_time_constant_s", 30.0, "time constant of drift tracking (no contact)",
+     {"unit": "s", "float_range": (0.1, 1e6)}),
+    ("contact_on_counts", 3.0, "|deviation| entering contact (freezes drift tracking)",
+     {"unit": "8-bit counts", "float_range": (0.1, 255.0)}),
+    ("contact_off_counts", 2.0, "|deviation| below which contact may end",
+     {"unit": "8-bit counts", "float_range": (0.0, 255.0)}),
+    ("release_s", 1.0, "time below contact_off_counts before contact ends",
+     {"unit": "s", "float_range": (0.0, 3600.0)}),
+    ("freeze_radius_m", 0.012, "taxels this close to a contact are frozen too",
+     {"unit": "m", "float_range": (0.0, 1.0)}),
+    ("module_freeze", True, "freeze a whole module when one of its taxels is in contact", {}),
+    ("max_freeze_s", 0.0, "resume drift tracking after this long frozen; 0 = never",
+     {"unit": "s", "float_range": (0.0, 1e6)}),
+    ("stuck_timeout_s", 60.0, "unchanged this long = stuck; 0 = never",
+     {"unit": "s", "float_range": (0.0, 1e6)}),
+    ("dead_timeout_s", 5.0, "reading 0 this long = dead",
+     {"unit": "s", "float_range": (0.01, 1e6)}),
+    ("tare_window", 10, "readings averaged by ~/tare", {"int_range": (1, 10_000)}),
+    ("send_config", False, "send SET_BRD_CFG, SET_TRIANG_CFG, SET_TXMODE on activate", {}),
+    ("skin_type", 0, "SET_BRD_CFG skin type", {"int_range": (0, 15)}),
+    ("cdc_offset", 0x2200, "SET_TRIANG_CFG CDC offset",
+     {"unit": "CDC counts", "int_range": (0, 0xFFFF)}),
+    ("diagnostics_period_s", 1.0, "period of /diagnostics",
+     {"unit": "s", "float_range": (0.1, 60.0)}),
+)
+# fmt: on
+
+
+class SkinDriver(LifecycleNode):
+    """The ``skin_driver`` lifecycle node (see the module docstring).
+
+    Args:
+        node_name: ROS node name.
+        **kwargs: passed to ``rclpy.lifecycle.LifecycleNode`` (``context``,
+            ``parameter_overrides``, ``namespace``...).
+
+    Raises:
+        rclpy.exceptions.InvalidParameterValueException: a parameter override is out of range.
+    """
+
+    def __init__(self, node_name: str = "skin_driver", **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        for name, default, text, options in PARAMETERS:
+            cm.declare_parameter(self, name, default, text, **options)
+        self._names = [spec[0] for spec in PARAMETERS]
+        cm.log_parameters(self, self._names)
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._stream: SkinStream | None = None
+        self._policy: BusErrorPolicy | None = None
+        self._pubs: dict[str, Publisher] = {}
+        self._diag_pub: Publisher | None = None
+        self._diag_timer: Timer | None = None
+        self._tare_srv: Any = None
+        self._params: dict[str, Any] = {}
+        if self._params_value("autostart") and self.trigger_configure() == SUCCESS:
+            self.trigger_activate()
+
+    def _params_value(self, name: str) -> Any:
+        return self.get_parameter(name).value
+
+    # -- lifecycle ------------------------------------------------------------------------
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        try:
+            return self._configure()
+        except Exception as exc:  # a transition must end in FAILURE with a reason, not ERROR
+            self.get_logger().error(f"configure failed: {type(exc).__name__}: {exc}")
+            self._close()
+            return FAILURE
+
+    def _configure(self) -> TransitionCallbackReturn:
+        p = {n: self._params_value(n) for n in self._names}
+        self._params = p
+        layout_path = Path(p["layout"]) if p["layout"] else default_layout_path()
+        layout = load_layout(layout_path)  # LayoutError names file, key and problem
+        wanted = p["patches"] or [pl.name for pl in layout.patches]
+        patches = [layout.patch(name) for name in wanted]  # KeyError lists the known names
+        config = BaselineConfig(
+            calibration_samples=p["calibration_samples"],
+            drift_time_constant_s=p["drift_time_constant_s"],
+            contact_on_counts=p["contact_on_counts"],
+            contact_off_counts=p["contact_off_counts"],
+            release_s=p["release_s"],
+            freeze_radius_m=p["freeze_radius_m"],
+            module_freeze=p["module_freeze"],
+            max_freeze_s=p["max_freeze_s"] or None,
+            stuck_timeout_s=p["stuck_timeout_s"] or None,
+            dead_timeout_s=p["dead_timeout_s"],
+            tare_window=p["tare_window"],
+        )
+        classes = (
+            (codec.CLASS_SKIN, codec.CLASS_ANALOG_SENSOR)
+            if p["accept_class3"]
+            else (codec.CLASS_SKIN,)
+        )
+        self._stream = SkinStream(
+            patches,
+            id_classes=classes,
+            baseline=config,
+            farad_per_count=p["farad_per_count"] or None,
+            max_wait_s=p["max_wait_ms"] * 1e-3,
+            module_timeout_s=p["module_timeout_ms"] * 1e-3,
+            period_s=p["period_ms"] * 1e-3,
+            pair_window_s=p["pair_window_ms"] * 1e-3,
+            duplicate_window_s=p["duplicate_window_ms"] * 1e-3,
+            strict_status=p["strict_status"],
+        )
+        self._policy = BusErrorPolicy(p["reconnect_after_errors"])
+        bus = self._open_bus()
+        if bus is None:
+            return FAILURE
+        self._bus = bus
+        for pl in patches:
+            self._pubs[pl.name] = self.create_lifecycle_publisher(
+                TaxelArray, f"{pl.name}/taxels", cm.SENSOR_QOS
+            )
+        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", cm.DIAGNOSTICS_QOS)
+        self._diag_timer = self.create_timer(p["diagnostics_period_s"], self._publish_diagnostics)
+        self._tare_srv = self.create_service(Trigger, "~/tare", self._on_tare)
+        self.get_logger().info(
+            f"configured: layout {layout_path}, patches {[pl.name for pl in patches]}, "
+            f"{sum(len(pl.modules) for pl in patches)} modules, bus {self._bus_name()}"
+        )
+        return SUCCESS
+
+    def _bus_name(self) -> str:
+        p = self._params
+        if p["replay_file"]:
+            return f"replay of {p['replay_file']}"
+        return f"{p['interface']}:{p['channel']}"
+
+    def _open_bus(self) -> can.BusABC | Any | None:
+        p = self._params
+        assert self._stream is not None
+        try:
+            return open_bus(
+                interface=p["interface"],
+                channel=p["channel"],
+                bitrate=p["bitrate"],
+                replay_file=p["replay_file"],
+                replay_max_gap_s=p["replay_max_gap_s"],
+                can_filters=self._stream.can_filters(),
+            )
+        except Exception as exc:  # python-can raises many types for a bus it cannot open
+            self.get_logger().error(
+                f"cannot open CAN bus {self._bus_name()}: {type(exc).__name__}: {exc}"
+            )
+            return None
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        try:
+            if self._params["send_config"]:
+                self._send_config()
+            self._stop.clear()
+            self._thread = threading.Thread(target=self._receive_loop, name="skin_rx", daemon=True)
+            self._thread.start()
+        except Exception as exc:
+            self.get_logger().error(f"activate failed: {type(exc).__name__}: {exc}")
+            return FAILURE
+        self.get_logger().info("active: publishing")
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._stop_thread()
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._close()
+        return SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._close()
+        return SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._close()
+        return SUCCESS
+
+    def _stop_thread(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+
+    def _close(self) -> None:
+        """Stop the thread, close the bus, destroy what configure created."""
+        self._stop_thread()
+        bus, self._bus = getattr(self, "_bus", None), None
+        if bus is not None:
+            try:
+                bus.shutdown()
+            except Exception as exc:
+                self.get_logger().warning(f"closing the bus: {exc}")
+        for pub in self._pubs.values():
+            self.destroy_lifecycle_publisher(pub)
+        self._pubs.clear()
+        if self._diag_timer is not None:
+            self.destroy_timer(self._diag_timer)
+            self._diag_timer = None
+        if self._diag_pub is not None:
+            self.destroy_publisher(self._diag_pub)
+            self._diag_pub = None
+        if self._tare_srv is not None:
+            self.destroy_service(self._tare_srv)
+            self._tare_srv = None
+
+    def destroy_node(self) -> None:
+        self._close()
+        super().destroy_node()
+
+    # -- bus ------------------------------------------------------------------------------
+    def _send_config(self) -> None:
+        """SET_BRD_CFG, SET_TRIANG_CFG (all triangles of each board) then SET_TXMODE start."""
+        p, stream = self._params, self._stream
+        assert stream is not None
+        for board, (first, last, shift, no_load) in sorted(stream.board_ranges().items()):
+            for cmd in (
+                codec.set_board_config(board, p["skin_type"], p["period_ms"], no_load),
+                codec.set_triangle_config(board, first, last, shift, True, p["cdc_offset"]),
+                codec.set_tx_mode(board, True),
+            ):
+                self._bus.send(cmd.to_message(), timeout=0.1)
+            self.get_logger().info(
+                f"sent configuration to board {board} (triangles {first}..{last})"
+            )
+
+    def _receive_loop(self) -> None:
+        """Receive, decode and publish until stopped; never raises."""
+        p, stream, policy = self._params, self._stream, self._policy
+        assert stream is not None and policy is not None
+        timeout = p["receive_timeout_s"]
+        log = self.get_logger()
+        finished_logged = False
+        while not self._stop.is_set():
+            bus = self._bus
+            if bus is None:
+                self._stop.wait(p["reconnect_interval_s"])
+                with self._lock:
+                    policy.reconnect_attempts += 1
+                bus = self._open_bus()
+                if bus is None:
+                    continue
+                self._bus = bus
+                with self._lock:
+                    policy.reconnects += 1
+                log.info(f"reconnected to {self._bus_name()}")
+            try:
+                msg = bus.recv(timeout)
+            except (can.CanError, OSError) as exc:
+                with self._lock:
+                    reconnect = policy.error(exc)
+                log.warning(
+                    f"CAN bus error ({policy.errors} so far): {type(exc).__name__}: {exc}",
+                    throttle_duration_sec=WARN_THROTTLE_S,
+                )
+                if reconnect:
+                    log.warning(f"{policy.consecutive} consecutive bus errors: reconnecting")
+                    self._bus = None
+                    with contextlib.suppress(Exception):
+                        bus.shutdown()
+                continue
+            except Exception as exc:  # a broken backend must not kill the thread
+                with self._lock:
+                    policy.internal_errors += 1
+                log.error(
+                    f"unexpected error in receive: {exc!r}", throttle_duration_sec=WARN_THROTTLE_S
+                )
+                self._stop.wait(timeout)
+                continue
+            policy.ok()
+            if msg is None and getattr(bus, "finished", False) and not finished_logged:
+                log.info(f"replay of {p['replay_file']} finished")
+                finished_logged = True
+            try:
+                with self._lock:
+                    now = time.monotonic()
+                    out = stream.feed(msg, now) if msg is not None else []
+                    out += stream.poll(now)
+            except Exception as exc:
+                with self._lock:
+                    policy.internal_errors += 1
+                log.error(f"dropped a frame: {exc!r}", throttle_duration_sec=WARN_THROTTLE_S)
+                continue
+            for frame in out:
+                self._publish(frame)
+            if stream.last_error is not None:
+                log.warning(
+                    f"rejected frame: {stream.last_error}", throttle_duration_sec=WARN_THROTTLE_S
+                )
+                stream.last_error = None
+
+    def _publish(self, f: PatchFrame) -> None:
+        pub = self._pubs.get(f.patch)
+        if pub is None:
+            return
+        msg = TaxelArray(patch=f.patch)
+        msg.header.frame_id = f.frame_id
+        if self._params["stamp_source"] == "can":
+            msg.header.stamp = cm.stamp_from_seconds(max(f.stamp, 0.0))
+        else:
+            msg.header.stamp = self.get_clock().now().to_msg()
+        msg.taxel_ids = f.taxel_ids
+        msg.delta_c = f.delta_c
+        msg.raw = f.raw
+        msg.status = f.status
+        pub.publish(msg)
+
+    # -- services and diagnostics ---------------------------------------------------------
+    def _on_tare(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        if self._stream is None:
+            response.success, response.message = False, "not configured"
+            return response
+        with self._lock:
+            done, missing = self._stream.tare()
+        response.success = not missing
+        response.message = f"tared patches {done}" + (
+            f"; no reading yet from {missing}" if missing else ""
+        )
+        self.get_logger().info(f"tare: {response.message}")
+        return response
+
+    def _publish_diagnostics(self) -> None:
+        if self._stream is None or self._diag_pub is None or self._policy is None:
+            return
+        with self._lock:
+            statuses = self._stream.diagnostics(time.monotonic())
+            bus_values = self._policy.values()
+        name = f"{self.get_name()}: CAN bus"
+        bus_open = self._bus is not None
+        finished = bus_open and getattr(self._bus, "finished", False)
+        level = cm.OK if bus_open else cm.ERROR
+        message = "replay finished" if finished else ("open" if bus_open else "closed")
+        values = {"bus": self._bus_name(), "state": self._state_label(), **bus_values}
+        if bus_values["bus_errors_in_window"]:
+            level = max(level, cm.WARN)
+            message += f", {bus_values['bus_errors_in_window']} bus errors"
+        prefix = self.get_name()
+        out = DiagnosticArray()
+        out.header.stamp = self.get_clock().now().to_msg()
+        out.status = [cm.diagnostic_status(name, level, message, values, self._bus_name())] + [
+            cm.diagnostic_status(f"{prefix}: {s.name}", s.level, s.message, s.values, s.hardware_id)
+            for s in statuses
+        ]
+        self._diag_pub.publish(out)
+
+    def _state_label(self) -> str:
+        return self._state_machine.current_state[1]
+
+
+def main(args: list[str] | None = None) -> None:
+    """Run ``skin_driver`` until Ctrl-C."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = SkinDriver()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,479 @@
+"""The ROS-free half of ``skin_driver``: bus opening, log replay, patch readings, health.
+
+:class:`SkinStream` turns received CAN messages into per-patch readings: the codec's
+:class:`~tactile_contact.codec.PeriodAssembler` pairs frames A and B into module readings,
+each patch gathers its modules' readings, and when every *live* module of the patch has a new
+reading (or ``max_wait_s`` has passed since the first one) the patch's
+:class:`~tactile_contact.baseline.BaselineTracker` turns the raw values into ΔC [F] and a
+:class:`PatchFrame` comes out. A module that delivers a second reading before its patch was
+published forces the publication first, so no complete reading is ever overwritten. Modules
+without a new reading are flagged STALE, never left out; a module silent for longer than
+``module_timeout_s`` is no longer waited for.
+
+Times: ``stamp`` values are the messages' receive times (python-can ``timestamp``, s);
+``now`` arguments are a monotonic clock [s] used only for waiting and rates.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+
+import can
+import numpy as np
+from numpy.typing import NDArray
+
+from tactile_contact import baseline as bl
+from tactile_contact import codec
+from tactile_contact.layout import PatchLayout
+from tactile_contact.modules import CHANNELS_PER_MODULE, taxel_id
+
+SKIN_MASK = 0x700
+
+
+class ReplayBus:
+    """A candump log read like a bus: :meth:`recv` returns its messages at recorded pace.
+
+    Built on ``can.LogReader`` and ``can.MessageSync``. Gaps longer than ``max_gap_s`` are
+    shortened to it. ``can_filters`` are applied as a live bus would (python-can form). After
+    the last message :attr:`finished` is True and :meth:`recv` returns None after ``timeout``.
+    """
+
+    def __init__(
+        self, path: str, max_gap_s: float = 1.0, can_filters: Sequence[dict] | None = None
+    ) -> None:
+        self._reader = can.LogReader(path)
+        self._messages: Iterator[can.Message] = iter(
+            can.MessageSync(self._reader, timestamps=True, skip=max_gap_s)
+        )
+        self._filters = list(can_filters or [])
+        self.finished = False
+        self._closed = threading.Event()
+
+    def _matches(self, msg: can.Message) -> bool:
+        if not self._filters:
+            return True
+        return any(
+            (msg.arbitration_id & f["can_mask"]) == (f["can_id"] & f["can_mask"])
+            and msg.is_extended_id == f.get("extended", msg.is_extended_id)
+            for f in self._filters
+        )
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        """Next message of the log that passes the filters (waits for its recorded time)."""
+        while not self.finished:
+            try:
+                msg = next(self._messages)
+            except StopIteration:
+                self.finished = True
+                break
+            if self._matches(msg):
+                return msg
+        self._closed.wait(timeout or 0.0)
+        return None
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        """A log cannot be written to: the message is discarded."""
+
+    def shutdown(self) -> None:
+        self._closed.set()
+        self._reader.stop()
+
+
+def open_bus(
+    *,
+    interface: str,
+    channel: str,
+    bitrate: int = 0,
+    replay_file: str = "",
+    replay_max_gap_s: float = 1.0,
+    can_filters: Sequence[dict] | None = None,
+) -> can.BusABC | ReplayBus:
+    """A python-can bus from configuration, or a :class:`ReplayBus` when ``replay_file`` is set.
+
+    ``bitrate`` 0 leaves the interface's own setting. Raises whatever python-can raises for a
+    bus it cannot open (``can.CanError``, ``OSError``, ``ImportError``, ``ValueError``...).
+    """
+    if replay_file:
+        return ReplayBus(replay_file, replay_max_gap_s, can_filters)
+    kwargs: dict = {"interface": interface, "channel": channel}
+    if bitrate:
+        kwargs["bitrate"] = bitrate
+    if can_filters:
+        kwargs["can_filters"] = list(can_filters)
+    return can.Bus(**kwargs)
+
+
+@dataclass
+class BusErrorPolicy:
+    """Counts bus errors; asks for a reconnect after ``reconnect_after`` consecutive ones."""
+
+    reconnect_after: int
+    errors: int = 0
+    consecutive: int = 0
+    reconnects: int = 0
+    reconnect_attempts: int = 0
+    internal_errors: int = 0
+    last_error: str = ""
+    _errors_at_last_report: int = 0
+
+    def error(self, exc: BaseException) -> bool:
+        """Record one error; True when the bus should be closed and reopened."""
+        self.errors += 1
+        self.consecutive += 1
+        self.last_error = f"{type(exc).__name__}: {exc}"
+        if self.consecutive >= self.reconnect_after:
+            self.consecutive = 0
+            return True
+        return False
+
+    def ok(self) -> None:
+        self.consecutive = 0
+
+    def values(self) -> dict[str, object]:
+        """Diagnostic key/values; ``bus_errors_in_window`` counts errors since the last call."""
+        window = self.errors - self._errors_at_last_report
+        self._errors_at_last_report = self.errors
+        return {
+            "bus_errors": self.errors,
+            "bus_errors_in_window": window,
+            "reconnects": self.reconnects,
+            "reconnect_attempts": self.reconnect_attempts,
+            "internal_errors": self.internal_errors,
+            "last_bus_error": self.last_error,
+        }
+
+
+@dataclass(frozen=True)
+class PatchFrame:
+    """One patch reading, ready to become a TaxelArray (arrays in layout channel order)."""
+
+    patch: str
+    frame_id: str
+    stamp: float  # receive time [s] of the frame completing the newest module reading
+    taxel_ids: list[int]
+    delta_c: NDArray[np.float32]  # [F]
+    raw: bytes
+    status: bytes
+
+
+@dataclass(frozen=True)
+class DiagStatus:
+    """A ROS-free DiagnosticStatus: level 0 OK, 1 WARN, 2 ERROR, 3 STALE."""
+
+    name: str
+    level: int
+    message: str
+    values: dict[str, object]
+    hardware_id: str = ""
+
+
+@dataclass
+class _ModuleState:
+    board: int
+    triangle: int
+    fresh: bool = False
+    last_seen: float = -math.inf  # monotonic [s]
+    last_stamp: float = -math.inf  # receive time [s]
+    missed_periods: int = 0
+    readings_at_report: int = 0
+    report_time: float = math.nan
+
+
+@dataclass
+class _PatchState:
+    layout: PatchLayout
+    tracker: bl.BaselineTracker
+    modules: list[_ModuleState]
+    taxel_ids: list[int]
+    raw: NDArray[np.uint8]
+    oor: NDArray[np.bool_]
+    err: NDArray[np.bool_]
+    seen: NDArray[np.bool_]
+    first_pending: float = math.inf
+    newest_stamp: float = -math.inf
+    published: int = 0
+    stale_publications: int = 0
+    last_bad: dict[int, list[str]] = field(default_factory=dict)
+
+
+class SkinStream:
+    """Module frames in, patch readings out (see the module docstring).
+
+    Args:
+        patches: the patch layouts to serve (their modules must have distinct addresses).
+        id_classes: accepted id classes (``codec.CLASS_SKIN`` and optionally class 3).
+        baseline: baseline tracking parameters.
+        farad_per_count: gain of one CDC count [F]; None = each patch's layout value.
+        max_wait_s: longest wait from a patch's first new module reading to its publication.
+        module_timeout_s: a module silent this long is not waited for.
+        period_s: nominal module period (gaps longer than 1.5 periods count missed periods).
+        pair_window_s, duplicate_window_s, strict_status: passed to the assembler.
+    """
+
+    def __init__(
+        self,
+        patches: Sequence[PatchLayout],
+        *,
+        id_classes: Sequence[int] = (codec.CLASS_SKIN,),
+        baseline: bl.BaselineConfig | None = None,
+        farad_per_count: float | None = None,
+        max_wait_s: float = 0.05,
+        module_timeout_s: float = 0.5,
+        period_s: float = 0.05,
+        pair_window_s: float = 0.010,
+        duplicate_window_s: float = 0.005,
+        strict_status: bool = False,
+    ) -> None:
+        for name, v in (
+            ("max_wait_s", max_wait_s),
+            ("module_timeout_s", module_timeout_s),
+            ("period_s", period_s),
+        ):
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {v!r}")
+        if not patches:
+            raise ValueError("patches must name at least one patch")
+        self.max_wait_s = max_wait_s
+        self.module_timeout_s = module_timeout_s
+        self.period_s = period_s
+        self.id_classes = tuple(id_classes)
+        self._patches: list[_PatchState] = []
+        self._where: dict[tuple[int, int], tuple[_PatchState, int]] = {}
+        for pl in patches:
+            st = self._patch_state(pl, baseline, farad_per_count)
+            for i, m in enumerate(st.modules):
+                key = (m.board, m.triangle)
+                if key in self._where:
+                    raise ValueError(f"module board {key[0]} triangle {key[1]} in two patches")
+                self._where[key] = (st, i)
+            self._patches.append(st)
+        self.assembler = codec.PeriodAssembler(
+            id_classes=self.id_classes,
+            modules=list(self._where),
+            pair_window_s=pair_window_s,
+            duplicate_window_s=duplicate_window_s,
+            strict_status=strict_status,
+        )
+        self.last_error: codec.CodecError | None = None
+        self._report_time = math.nan
+        self._start: float | None = None  # monotonic time of the first reading [s]
+
+    @staticmethod
+    def _patch_state(
+        pl: PatchLayout, config: bl.BaselineConfig | None, farad_per_count: float | None
+    ) -> _PatchState:
+        n = CHANNELS_PER_MODULE * len(pl.modules)
+        tracker = bl.BaselineTracker(
+            n,
+            valid=pl.valid_mask(),
+            module_index=np.repeat(np.arange(len(pl.modules)), CHANNELS_PER_MODULE),
+            positions=pl.channel_xy(),
+            farad_per_count=farad_per_count or pl.sensor.farad_per_count,
+            shift=pl.sensor.shift,
+            config=config,
+        )
+        ids = [
+            taxel_id(m.board, m.triangle, c) for m in pl.modules for c in range(CHANNELS_PER_MODULE)
+        ]
+        return _PatchState(
+            layout=pl,
+            tracker=tracker,
+            modules=[_ModuleState(m.board, m.triangle) for m in pl.modules],
+            taxel_ids=ids,
+            raw=np.zeros(n, dtype=np.uint8),
+            oor=np.zeros(n, dtype=bool),
+            err=np.zeros(n, dtype=bool),
+            seen=np.zeros(n, dtype=bool),
+        )
+
+    def can_filters(self) -> list[dict]:
+        """python-can receive filters keeping only the accepted skin id classes."""
+        return [
+            {"can_id": c << 8, "can_mask": SKIN_MASK, "extended": False} for c in self.id_classes
+        ]
+
+    def board_ranges(self) -> dict[int, tuple[int, int, int, int]]:
+        """Per board: (first triangle, last triangle, shift, no_load) for the host commands."""
+        out: dict[int, tuple[int, int, int, int]] = {}
+        for st in self._patches:
+            s = st.layout.sensor
+            for m in st.modules:
+                lo, hi, _, _ = out.get(m.board, (m.triangle, m.triangle, 0, 0))
+                out[m.board] = (min(lo, m.triangle), max(hi, m.triangle), s.shift, s.no_load)
+        return out
+
+    # -- data path ------------------------------------------------------------------------
+    def feed(self, msg: can.Message, now: float) -> list[PatchFrame]:
+        """Process one received message; the patch readings it completed (0, 1 or 2)."""
+        a = self.assembler
+        reading = a.feed(msg)
+        if a.last_error is not None:
+            self.last_error, a.last_error = a.last_error, None
+        if reading is None:
+            return []
+        st, i = self._where[reading.key]
+        out: list[PatchFrame] = []
+        m = st.modules[i]
+        if m.fresh:  # a second reading before publication: publish the first one now
+            out.append(self._emit(st))
+        if math.isfinite(m.last_stamp):
+            gap = reading.timestamp - m.last_stamp
+            if gap > 1.5 * self.period_s:
+                m.missed_periods += max(round(gap / self.period_s) - 1, 0)
+        sl = slice(CHANNELS_PER_MODULE * i, CHANNELS_PER_MODULE * (i + 1))
+        st.raw[sl] = reading.values
+        st.oor[sl] = reading.out_of_range
+        st.err[sl] = bool(reading.error_flags)
+        st.seen[sl] = True
+        m.fresh, m.last_seen, m.last_stamp = True, now, reading.timestamp
+        st.first_pending = min(st.first_pending, now)
+        st.newest_stamp = max(st.newest_stamp, reading.timestamp)
+        if self._start is None:
+            self._start = now
+        if all(mm.fresh for mm in st.modules if self._live(mm, now)):
+            out.append(self._emit(st))
+        return out
+
+    def _live(self, m: _ModuleState, now: float) -> bool:
+        """Waited for: heard within the timeout, or never heard yet but the stream is young."""
+        if math.isfinite(m.last_seen):
+            return now - m.last_seen <= self.module_timeout_s
+        return self._start is not None and now - self._start <= self.module_timeout_s
+
+    def poll(self, now: float) -> list[PatchFrame]:
+        """Patch readings whose max wait has passed (call at least every few ms)."""
+        return [self._emit(st) for st in self._patches if now - st.first_pending >= self.max_wait_s]
+
+    def _emit(self, st: _PatchState) -> PatchFrame:
+        fresh = np.repeat([m.fresh for m in st.modules], CHANNELS_PER_MODULE)
+        res = st.tracker.update(
+            st.raw, st.newest_stamp, fresh=fresh, out_of_range=st.oor, module_error=st.err
+        )
+        status = res.status.copy()
+        status[~st.seen] &= np.uint8(~bl.STATUS_SATURATED & 0xFF)  # never heard: no value at all
+        st.last_bad = st.tracker.bad_taxels()
+        for m in st.modules:
+            m.fresh = False
+        st.first_pending = math.inf
+        st.published += 1
+        if not fresh.all():
+            st.stale_publications += 1
+        return PatchFrame(
+            patch=st.layout.name,
+            frame_id=st.layout.frame_id,
+            stamp=st.newest_stamp,
+            taxel_ids=st.taxel_ids,
+            delta_c=res.delta_c.astype(np.float32),
+            raw=st.raw.tobytes(),
+            status=status.tobytes(),
+        )
+
+    def tare(self) -> tuple[list[str], list[str]]:
+        """Tare every patch: (patches tared, patches without any reading yet)."""
+        done, missing = [], []
+        for st in self._patches:
+            (done if st.tracker.tare() else missing).append(st.layout.name)
+        return done, missing
+
+    # -- health ---------------------------------------------------------------------------
+    def diagnostics(self, now: float) -> list[DiagStatus]:
+        """Bus-wide frame counters, then one status per patch and per module.
+
+        Rates are over the time since the previous call (monotonic ``now`` [s]).
+        """
+        c = self.assembler.counters
+        rejected = {
+            f"rejected_{k}": getattr(c, k)
+            for k in ("truncated", "unknown_id", "bad_type", "bad_status", "not_data")
+        }
+        rejected["rejected_unexpected_module"] = c.unexpected_module
+        frames = {
+            "frames": c.frames,
+            "readings": c.readings,
+            "rejected": c.rejected,
+            **rejected,
+            "duplicates": c.duplicates,
+            "incomplete_periods": c.incomplete,
+            "orphan_b": c.orphan_b,
+            "reordered": c.reordered,
+        }
+        out = [
+            DiagStatus(
+                "frames",
+                0,
+                f"{c.frames} frames, {c.rejected} rejected" if c.frames else "no frames yet",
+                frames,
+            )
+        ]
+        per_module = self.assembler.module_counters()
+        dt = now - self._report_time
+        self._report_time = now
+        for st in self._patches:
+            out.append(self._patch_status(st))
+            for m in st.modules:
+                out.append(
+                    self._module_status(st, m, per_module.get((m.board, m.triangle)), now, dt)
+                )
+        return out
+
+    def _patch_status(self, st: _PatchState) -> DiagStatus:
+        bad = {st.taxel_ids[i]: why for i, why in st.last_bad.items()}
+        kinds: dict[str, list[str]] = {"stuck": [], "dead": [], "saturated": [], "out_of_range": []}
+        for tid, reasons in sorted(bad.items()):
+            for r in reasons:
+                for k in kinds:
+                    if r.startswith(k.replace("_", " ")):
+                        kinds[k].append(f"0x{tid:03X}")
+        silent = [f"{m.board}/{m.triangle}" for m in st.modules if not math.isfinite(m.last_seen)]
+        level = 1 if bad else 0
+        msg = f"{len(bad)} bad taxels" if bad else "ok"
+        if not st.tracker.calibrated:
+            msg += ", calibrating"
+        values: dict[str, object] = {
+            "published": st.published,
+            "published_with_stale_modules": st.stale_publications,
+            "calibrated": st.tracker.calibrated,
+            "bad_taxels": len(bad),
+            **{f"{k}_taxels": " ".join(v) for k, v in kinds.items()},
+            "never_heard_modules": " ".join(silent),
+        }
+        return DiagStatus(f"patch {st.layout.name}", level, msg, values, st.layout.frame_id)
+
+    def _module_status(
+        self,
+        st: _PatchState,
+        m: _ModuleState,
+        mc: codec.ModuleCounters | None,
+        now: float,
+        dt: float,
+    ) -> DiagStatus:
+        readings = mc.readings if mc is not None else 0
+        rate = (readings - m.readings_at_report) / dt if dt > 0 else 0.0
+        m.readings_at_report = readings
+        age = now - m.last_seen
+        silent = not age <= self.module_timeout_s
+        drops = m.missed_periods + ((mc.incomplete + mc.orphan_b) if mc is not None else 0)
+        values: dict[str, object] = {
+            "rate_hz": float(rate),
+            "readings": readings,
+            "drops": drops,
+            "missed_periods": m.missed_periods,
+            "incomplete_periods": mc.incomplete if mc is not None else 0,
+            "orphan_b": mc.orphan_b if mc is not None else 0,
+            "duplicates": mc.duplicates if mc is not None else 0,
+            "error_readings": mc.error_readings if mc is not None else 0,
+            "last_error_flags": mc.last_error_flags if mc is not None else 0,
+            "stale": silent,
+            "seconds_since_last_reading": float(age) if math.isfinite(age) else -1.0,
+        }
+        if silent:
+            level, msg = 2, "silent" if readings else "never heard"
+        elif mc is not None and mc.last_error_flags:
+            level, msg = 1, f"module error flags 0x{mc.last_error_flags:X}"
+        else:
+            level, msg = 0, f"{rate:.1f} Hz"
+        name = f"patch {st.layout.name} module board {m.board} triangle {m.triangle}"
+        return DiagStatus(name, level, msg, values, f"board {m.board} triangle {m.triangle}")
