@@ -1,0 +1,151 @@
+"""Benchmark: skin frame decode + period assembly + baseline vs python-can receiving alone.
+
+Load: 16 triangles × 100 Hz (3 200 frames/s), the issue's reference load. Everything runs in
+one process on python-can's ``virtual`` bus; the baseline of the table is the cost of
+``bus.recv()`` for the same frames, so the ratios say how much the driver core adds to what any
+python-can reader pays anyway. Correctness (every reading delivered, values exact) is checked
+before the timings are printed.
+
+Usage: .venv/bin/python bench/bench_codec.py [--quick] [--seconds S]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import uuid
+
+import can
+import numpy as np
+
+from tactile_contact.baseline import BaselineTracker
+from tactile_contact.codec import PeriodAssembler, decode_frame, reading_messages
+
+TRIANGLES = 16
+RATE_HZ = 100.0
+
+
+def make_frames(seconds: float, seed: int = 0) -> tuple[list[can.Message], np.ndarray]:
+    rng = np.random.default_rng(seed)
+    n_periods = round(seconds * RATE_HZ)
+    values = rng.integers(200, 250, size=(n_periods, TRIANGLES, 12), dtype=np.uint8)
+    msgs: list[can.Message] = []
+    for k in range(n_periods):
+        t = k / RATE_HZ
+        for tri in range(TRIANGLES):
+            msgs += reading_messages(
+                tri // 8, tri % 8, values[k, tri].tobytes(), timestamp=t + tri * 2.6e-4
+            )
+    return msgs, values
+
+
+def best_of(fn, repeats: int) -> float:
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="1 s of traffic, 2 repeats")
+    ap.add_argument("--seconds", type=float, default=10.0, help="simulated traffic [s]")
+    args = ap.parse_args()
+    seconds = 1.0 if args.quick else args.seconds
+    repeats = 2 if args.quick else 5
+    msgs, values = make_frames(seconds)
+    n = len(msgs)
+
+    # Correctness first: every reading comes back with its exact values.
+    asm = PeriodAssembler()
+    readings = asm.feed_many(msgs)
+    assert len(readings) == values.shape[0] * TRIANGLES, len(readings)
+    for i, r in enumerate(readings):
+        k, tri = divmod(i, TRIANGLES)
+        assert np.array_equal(r.values, values[k, tri])
+    assert asm.counters.rejected == 0
+
+    channel = f"bench-{uuid.uuid4().hex}"
+
+    def recv_only() -> None:
+        with (
+            can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as tx,
+            can.Bus(interface="virtual", channel=channel) as rx,
+        ):
+            for m in msgs:
+                tx.send(m)
+            t0 = time.perf_counter()
+            for _ in range(n):
+                rx.recv(timeout=1.0)
+            recv_only.elapsed = time.perf_counter() - t0  # type: ignore[attr-defined]
+
+    def recv_and_assemble() -> None:
+        a = PeriodAssembler()
+        with (
+            can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as tx,
+            can.Bus(interface="virtual", channel=channel) as rx,
+        ):
+            for m in msgs:
+                tx.send(m)
+            t0 = time.perf_counter()
+            for _ in range(n):
+                a.feed(rx.recv(timeout=1.0))
+            recv_and_assemble.elapsed = time.perf_counter() - t0  # type: ignore[attr-defined]
+        # Simulated stamps are kept (preserve_timestamps): bulk sending here is not paced, and
+        # wall-clock stamps could put a scheduler pause between a frame A and its B.
+        assert a.counters.readings == len(readings), a.counters
+
+    t_recv = min(_timed(recv_only) for _ in range(repeats))
+    t_recv_asm = min(_timed(recv_and_assemble) for _ in range(repeats))
+    t_decode = best_of(
+        lambda: [decode_frame(m.arbitration_id, m.data, m.timestamp) for m in msgs], repeats
+    )
+    t_assemble = best_of(lambda: PeriodAssembler().feed_many(msgs), repeats)
+
+    # Baseline tracking of the whole bus as one patch, once per period.
+    n_ch = TRIANGLES * 12
+    xy = np.random.default_rng(1).uniform(0, 0.1, (n_ch, 2))
+    raw = values.reshape(values.shape[0], n_ch)
+
+    def track() -> None:
+        tr = BaselineTracker(n_ch, positions=xy)
+        for k in range(raw.shape[0]):
+            tr.update(raw[k], k / RATE_HZ)
+
+    t_base = best_of(track, repeats)
+    periods = raw.shape[0]
+
+    us = 1e6 / n
+    rows = [
+        ("virtual bus recv alone", t_recv * us, 1.0),
+        ("decode_frame only", t_decode * us, t_decode / t_recv),
+        ("decode + assemble (feed)", t_assemble * us, t_assemble / t_recv),
+        ("recv + decode + assemble", t_recv_asm * us, t_recv_asm / t_recv),
+        ("baseline update (per frame share)", t_base * us, t_base / t_recv),
+    ]
+    print(
+        f"{n} frames = {seconds:g} s of {TRIANGLES} triangles x {RATE_HZ:g} Hz; best of {repeats}"
+    )
+    print(f"{'stage':38s} {'us/frame':>10s} {'x recv':>8s}")
+    for name, per, ratio in rows:
+        print(f"{name:38s} {per:10.2f} {ratio:8.2f}")
+    frames_per_s = TRIANGLES * RATE_HZ * 2
+    cpu_recv = t_recv / seconds
+    cpu_core = (t_assemble + t_base) / seconds
+    print(f"baseline update: {t_base / periods * 1e6:.1f} us per period ({n_ch} channels)")
+    total = 100 * (cpu_recv + cpu_core)
+    print(
+        f"CPU share of one core at {frames_per_s:.0f} frames/s: recv alone {100 * cpu_recv:.2f} %,"
+        f" decode+assemble+baseline {100 * cpu_core:.2f} %, total {total:.2f} %"
+    )
+
+
+def _timed(fn) -> float:
+    fn()
+    return fn.elapsed
+
+
+if __name__ == "__main__":
+    main()
