@@ -8,7 +8,11 @@ the skin. Contact is detected per taxel on the *magnitude* of the deviation from
 hysteresis in level (``contact_on_counts`` / ``contact_off_counts``) and time (``release_s``);
 tracking is frozen on the taxels in contact, on every taxel within ``freeze_radius_m`` of one,
 and, with ``module_freeze``, on the whole module. A held contact therefore keeps its ΔC
-indefinitely (or for ``max_freeze_s`` if set), while drift without contact is followed.
+indefinitely (or for ``max_freeze_s`` if set), while drift without contact is followed. Drift
+that accumulated unseen under a long contact is absorbed when the contact ends: a taxel is
+released when its deviation stays below ``release_fraction`` of its contact peak (or below
+``contact_off_counts``) for ``release_s``, and a region that thaws restarts its baselines from
+the median of the last ``tare_window`` readings.
 
 Output is ΔC [F] (positive = compression) through :mod:`tactile_contact.sensor`, and per-taxel
 status flags whose values match ``tactile_contact/msg/TaxelArray`` (plus STATUS_UNCALIBRATED).
@@ -64,7 +68,15 @@ class BaselineConfig:
             1 − exp(−dt/τ). Drift of r counts/s is followed with a lag of r·τ counts.
         contact_on_counts: |baseline − value| at or above which a taxel is in contact [counts].
         contact_off_counts: |deviation| below which a taxel may leave contact [counts].
-        release_s: time the deviation must stay below ``contact_off_counts`` to release [s].
+        release_s: time the deviation must stay below the release level to release [s].
+        release_fraction: a taxel also counts as released when |deviation| stays below this
+            fraction of its peak during the contact (0 disables). This lets drift that built
+            up under a long contact be tracked again once the object is lifted, instead of
+            holding the contact forever.
+        onset_time_constant_s: time constant of the onset filter [s]. Only a contact whose
+            value stepped by ``contact_on_counts`` against this filter (a press faster than
+            about contact_on_counts / onset_time_constant_s counts/s) freezes baselines; slower
+            deviations (drift, very slow light presses) are flagged as contact but tracked.
         freeze_radius_m: taxels within this distance of a contact are frozen too [m] (needs
             positions; 0 freezes only the taxels in contact).
         module_freeze: freeze the whole module when one of its taxels is in contact.
@@ -81,6 +93,8 @@ class BaselineConfig:
     contact_on_counts: float = 3.0
     contact_off_counts: float = 2.0
     release_s: float = 1.0
+    release_fraction: float = 0.25
+    onset_time_constant_s: float = 2.0
     freeze_radius_m: float = 0.012
     module_freeze: bool = True
     max_freeze_s: float | None = None
@@ -95,10 +109,19 @@ class BaselineConfig:
             )
         if not (isinstance(self.tare_window, int) and self.tare_window >= 1):
             raise ValueError(f"tare_window must be an int >= 1, got {self.tare_window!r}")
-        for name in ("drift_time_constant_s", "contact_on_counts", "dead_timeout_s"):
+        for name in (
+            "drift_time_constant_s",
+            "onset_time_constant_s",
+            "contact_on_counts",
+            "dead_timeout_s",
+        ):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be finite and > 0, got {v!r}")
+        if not 0.0 <= self.release_fraction < 1.0:
+            raise ValueError(
+                f"release_fraction must be within [0, 1), got {self.release_fraction!r}"
+            )
         for name in ("release_s", "freeze_radius_m", "contact_off_counts"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
@@ -124,7 +147,7 @@ class BaselineResult:
         deviation: (N,) baseline − value [8-bit counts].
         status: (N,) uint8 STATUS_* flags.
         contact: (N,) taxels in contact (hysteresis state).
-        frozen: (N,) taxels whose baseline is frozen this reading.
+        frozen: (N,) taxels whose baseline is frozen this reading (near a fast-onset contact).
         calibrated: every valid taxel has its calibration.
     """
 
@@ -206,13 +229,19 @@ class BaselineTracker:
         self._unchanged_s = np.zeros(n)
         self._zero_s = np.zeros(n)
         self._last_t = np.full(n, np.nan)
+        self._onset_ref = np.full(n, np.nan)
         self._recent.clear()
 
     def _clear_dynamics(self) -> None:
         n = self.n
         self.contact = np.zeros(n, dtype=bool)
+        self.hard = np.zeros(n, dtype=bool)
+        self._blank_until = np.full(n, -np.inf)
+        self._blank_level = np.zeros(n)
+        self._peak = np.zeros(n)
         self._quiet_since = np.full(n, np.inf)
         self._frozen_since = np.full(n, np.inf)
+        self._was_frozen = np.zeros(n, dtype=bool)
 
     def tare(self) -> bool:
         """Make the current readings the baselines (mean of the last ``tare_window`` readings).
@@ -223,6 +252,7 @@ class BaselineTracker:
             return False
         mean = np.mean(np.stack(self._recent), axis=0)
         self.baseline = mean
+        self._onset_ref = mean.copy()
         done = self._cal_count < self.config.calibration_samples
         self._cal_count[done] = self.config.calibration_samples
         self._clear_dynamics()
@@ -296,13 +326,41 @@ class BaselineTracker:
         active = cal & self.valid & fr
         # Level hysteresis with a release delay.
         on = active & (mag >= cfg.contact_on_counts)
-        quiet = active & (mag < cfg.contact_off_counts)
+        self._peak = np.where(self.contact | on, np.maximum(self._peak, mag), 0.0)
+        level = np.maximum(cfg.contact_off_counts, cfg.release_fraction * self._peak)
+        quiet = active & (mag < level)
         self._quiet_since[quiet & np.isinf(self._quiet_since)] = t
         self._quiet_since[active & ~quiet] = np.inf
         released = self.contact & quiet & (t - self._quiet_since >= cfg.release_s)
         self.contact = (self.contact | on) & ~released & self.valid
+        self._peak[released] = 0.0
+        # Only a contact that appeared quickly (a step of contact_on_counts against the onset
+        # filter) freezes baselines: drift that built up unseen on a frozen taxel also crosses
+        # the level threshold, and must not keep the region frozen for ever.
+        ref = np.where(np.isnan(self._onset_ref), v, self._onset_ref)
+        # The step must move away from the baseline: lifting an object is a fast step too.
+        step = active & (np.abs(v - ref) >= cfg.contact_on_counts) & ((ref - v) * dev > 0)
+        # Around a fast contact that is being lifted, the layer relaxing (and drift that built
+        # up during the hold) steps the neighbours too. Until the onset filter has settled,
+        # a step there must reach half the lifted contact's peak to count (a sliding contact
+        # moving on does; a relaxing bulge does not).
+        peak_rel = np.where(self.hard & quiet, self._peak, 0.0)
+        if np.any(peak_rel > 0):
+            lvl = np.max(self._nbr * peak_rel[None, :], axis=1) * 0.5
+            renew = lvl > 0
+            self._blank_level[renew] = np.maximum(
+                np.where(t < self._blank_until[renew], self._blank_level[renew], 0.0),
+                lvl[renew],
+            )
+            self._blank_until[renew] = t + 2.0 * cfg.onset_time_constant_s
+        blanked = t < self._blank_until
+        step &= ~blanked | (np.abs(v - ref) >= self._blank_level)
+        self.hard = self.contact & (self.hard | step)
+        a_on = -np.expm1(-dt / cfg.onset_time_constant_s)
+        upd = fr & ~err
+        self._onset_ref[upd] = ref[upd] + a_on[upd] * (v[upd] - ref[upd])
 
-        frozen = (self._nbr @ self.contact.astype(np.float64)) > 0.0
+        frozen = (self._nbr @ self.hard.astype(np.float64)) > 0.0
         self._frozen_since[frozen & np.isinf(self._frozen_since)] = t
         self._frozen_since[~frozen] = np.inf
         hold = frozen
@@ -311,6 +369,13 @@ class BaselineTracker:
         track = usable & cal & ~hold & ~just
         alpha = -np.expm1(-dt / cfg.drift_time_constant_s)
         self.baseline[track] += alpha[track] * (v[track] - self.baseline[track])
+        # Drift went unobserved while frozen: where a contact has just ended, restart from the
+        # recent readings (all taken after the release delay) rather than from the old value.
+        thawed = self._was_frozen & ~frozen & usable & cal
+        if np.any(thawed):
+            recent = np.median(np.stack(self._recent), axis=0)
+            self.baseline[thawed] = recent[thawed]
+        self._was_frozen = frozen
 
         # Fault timers count time of fresh readings only, so a silent module is stale, not stuck.
         same = fr & (v == self._last_value)

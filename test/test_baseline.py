@@ -184,3 +184,57 @@ def test_argument_validation() -> None:
         BaselineConfig(contact_on_counts=1.0, contact_off_counts=2.0)
     with pytest.raises(ValueError, match="positions"):
         BaselineTracker(12, positions=np.zeros((3, 2)))
+
+
+@pytest.mark.parametrize("fraction", [0.25, 0.0])
+def test_drift_under_a_long_contact_is_absorbed_after_release(fraction: float) -> None:
+    """Drift of 3 counts builds up unseen under a 60 s contact; lifting the object must end the
+    contact and bring the output back to zero (with release_fraction 0 it stays stuck)."""
+    rng = np.random.default_rng(6)
+    tr = BaselineTracker(
+        24, positions=_positions(2), config=BaselineConfig(release_fraction=fraction)
+    )
+    press = np.zeros(24)
+    press[[3, 11]] = 20.0
+    press[[2, 7]] = -3.0
+    drift = 0.05  # counts/s towards "compression" for every taxel
+
+    def sig(t):
+        held = 5.0 <= t < 65.0
+        return 230.0 - press * held - drift * t
+
+    res = _run(tr, sig, 0.0, 75.0, rng)
+    r = res[-1][1]
+    if fraction > 0:
+        assert not r.contact.any()
+        assert np.all(np.abs(r.deviation) < 1.6)
+    else:
+        assert r.contact[[3, 11]].all()
+        assert np.all(r.deviation[[3, 11]] > 2.0)
+
+
+def test_slide_then_hold_keeps_the_contact() -> None:
+    """An indenter slides across a module for 2 s, then stays 60 s: still ≥ 90 % at the end."""
+    rng = np.random.default_rng(8)
+    xy = _positions(2)
+    tr = BaselineTracker(24, positions=xy)
+    a, b = xy[5], xy[0]  # 17.5 mm across the module
+
+    def centre(t):
+        u = np.clip((t - 5.0) / 2.0, 0.0, 1.0)
+        return a + u * (b - a)
+
+    def sig(t):
+        if t < 4.5:
+            return np.full(24, 235.0)
+        r2 = np.sum((xy - centre(t)) ** 2, axis=1)
+        ramp = min((t - 4.5) / 0.5, 1.0)
+        return 235.0 - ramp * 25.0 * (np.exp(-r2 / 3e-3**2) - 0.2 * np.exp(-r2 / 8e-3**2))
+
+    res = _run(tr, sig, 0.0, 68.0, rng)
+    truth_dev = 235.0 - sig(67.0)
+    got = np.mean([r.deviation for t, r in res if t >= 67.0], axis=0)
+    i = int(np.argmax(truth_dev))
+    assert i == 0
+    assert got[i] >= 0.9 * truth_dev[i]
+    assert res[-1][1].frozen[i] and res[-1][1].contact[i]
