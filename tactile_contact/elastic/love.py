@@ -1,0 +1,323 @@
+"""Love's solution: uniform normal pressure on a 2a × 2b rectangle of an elastic half-space.
+
+Conventions as in :mod:`tactile_contact.elastic.boussinesq`: SI units, depth z ≥ 0 into the
+skin, compressive pressure p > 0, u_z > 0 into the skin. (x, y) [m] is the offset of the field
+point from the cell centre. Every function returns a displacement per unit pressure [m/Pa].
+
+Near the cell the point kernels are integrated in closed form as a corner sum
+Σ s_X·s_Y·F(X, Y) over X ∈ {a−x (+), −a−x (−)}, Y ∈ {b−y (+), −b−y (−)} with asinh / atan2
+antiderivatives (DESIGN.md §2; derivations in docs/elastic.md). A corner sum of four terms
+of size ~d·log d whose result is ~ab/d loses about (d/s)² in relative accuracy at distance d
+from a cell of half-size s, so from d ≥ FAR_RATIO·s the smooth point kernel is integrated by
+tensor Gauss–Legendre quadrature instead, which converges like (2d/s)^(−2n) there.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from functools import cache
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from tactile_contact.elastic.boussinesq import (
+    Array,
+    depth_array,
+    finite_array,
+    material,
+    positive_array,
+)
+
+#: Distance / half-size ratio from which u_z, u_x, u_y use Gauss quadrature (corner sums lose
+#: ≲ 1e-12 relative below it; 5-point Gauss errs ≲ (2·30)^(−10) above it).
+FAR_RATIO = 30.0
+FAR_ORDER = 5
+#: The same for the effective u_z(0) − u_z(h), whose canonical corner sum stays within ~2e-11
+#: up to 200 half-sizes (3-point Gauss errs ≲ (2·200)^(−6) above it).
+FAR_RATIO_EFFECTIVE = 200.0
+FAR_ORDER_EFFECTIVE = 3
+
+_CORNERS = ((1.0, 1.0), (-1.0, 1.0), (1.0, -1.0), (-1.0, -1.0))
+
+
+@cache
+def _gauss(n: int) -> tuple[Array, Array]:
+    return np.polynomial.legendre.leggauss(n)
+
+
+def _xasinh(x: Array, y: Array, q: Array) -> Array:
+    """x·asinh(y/q) with the limit 0 where q = 0 (then x = 0 too)."""
+    safe = np.where(q > 0.0, q, 1.0)
+    return np.where(q > 0.0, x * np.arcsinh(y / safe), 0.0)
+
+
+def _corner_uz(xc: Array, yc: Array, z: Array, nu: float) -> Array:
+    """πE·u_z corner antiderivative (DESIGN.md §2)."""
+    qx, qy = np.hypot(xc, z), np.hypot(yc, z)
+    r = np.hypot(qx, yc)
+    return (1.0 - nu * nu) * (_xasinh(xc, yc, qx) + _xasinh(yc, xc, qy)) - 0.5 * (1.0 + nu) * (
+        1.0 - 2.0 * nu
+    ) * z * np.arctan2(xc * yc, z * r)
+
+
+def _corner_ux(xc: Array, yc: Array, z: Array, nu: float) -> Array:
+    """2πE/(1+ν)·u_x corner antiderivative of ∫∫[−X·z/R³ + (1−2ν)·X/(R(R+z))] dX dY."""
+    qx = np.hypot(xc, z)
+    r = np.hypot(qx, yc)
+    rz = r + z
+    log_term = np.where(rz > 0.0, yc * np.log(np.where(rz > 0.0, rz, 1.0)), 0.0)
+    # X·[atan(Y/X) − atan(zY/(XR))] merged into one atan2 (no 1/X, no cancellation).
+    ang = xc * np.arctan2(xc * yc * (xc * xc + yc * yc), rz * (xc * xc * r + z * yc * yc))
+    return 2.0 * (1.0 - nu) * z * np.arcsinh(yc / np.where(qx > 0, qx, 1.0)) * (qx > 0) + (
+        1.0 - 2.0 * nu
+    ) * (log_term + ang)
+
+
+def _corner_uz_effective(xc: Array, yc: Array, h: float, nu: float) -> Array:
+    """2πE/(1+ν)·[u_z(0) − u_z(h)] corner antiderivative in canonical (decaying) form.
+
+    The plain antiderivative 2(1−ν)(P_X + P_Y) + (1−2ν)·h·atan(XY/(hR)) tends to the edge
+    asymptotes sgn(X)·G(Y) + sgn(Y)·G(X) − sgn(X)sgn(Y)·G(∞) far from a corner; those are
+    subtracted here, in closed cancellation-free forms, so that every corner term is ~h²/d at
+    distance d and the corner sum loses only ~(d/s)² (not (d/s)³). The subtracted pieces are
+    added back exactly by :func:`_edge_correction`.
+    """
+    ax, ay = np.abs(xc), np.abs(yc)
+    r0 = np.sqrt(xc * xc + yc * yc)
+    r = np.sqrt(r0 * r0 + h * h)
+    s = h * h / (r0 + r)
+    # P_Y − sgn(X)·G(Y) = sgn(X)·Y·ln((|X|+R0)/(|X|+R)) = sgn(X)·Y·log1p(−s/(|X|+R)); the
+    # ratio is < 1 except at X = Y = 0, where the clamp keeps 0·log finite.
+    top = 1.0 - np.finfo(float).epsneg
+    p = np.sign(xc) * yc * np.log1p(-np.minimum(s / (ax + r), top))
+    p += np.sign(yc) * xc * np.log1p(-np.minimum(s / (ay + r), top))
+    if nu == 0.5:
+        return p
+    # atan(XY/(hR)) − sgnX·atan(Y/h) − sgnY·atan(X/h) + sgnX·sgnY·π/2, larger leg first
+    big, small = np.maximum(ax, ay), np.minimum(ax, ay)
+    v = np.arctan2(h, big) + np.arctan2(
+        -h * small * (small * small + h * h), (big + r) * (big * small * small + h * h * r)
+    )
+    return 2.0 * (1.0 - nu) * p + (1.0 - 2.0 * nu) * h * np.sign(xc) * np.sign(yc) * v
+
+
+def _edge_g_diff(t1: Array, t2: Array, h: float, nu: float) -> Array:
+    """G(t1) − G(t2), G(t) = 2(1−ν)·t·asinh(h²/(2|t|q_t)) + (1−2ν)·h·atan(t/h)."""
+
+    def g(t):
+        at = np.abs(t)
+        return np.where(
+            at > 0.0,
+            t * np.arcsinh(h * h / (2.0 * np.where(at > 0, at, 1.0) * np.sqrt(t * t + h * h))),
+            0.0,
+        )
+
+    out = 2.0 * (1.0 - nu) * (g(t1) - g(t2))
+    if nu != 0.5:
+        out = out + (1.0 - 2.0 * nu) * h * np.arctan2(h * (t1 - t2), h * h + t1 * t2)
+    return out
+
+
+def _edge_correction(xp: Array, xm: Array, yp: Array, ym: Array, h: float, nu: float) -> Array:
+    """What the canonical corner sum leaves out; non-zero only when the field point lies in the
+    cell's x-range or y-range (xp = a − x, xm = −a − x, yp, ym likewise)."""
+    cx = np.sign(xp) - np.sign(xm)
+    cy = np.sign(yp) - np.sign(ym)
+    out = cx * _edge_g_diff(yp, ym, h, nu) + cy * _edge_g_diff(xp, xm, h, nu)
+    return out - cx * cy * (1.0 - 2.0 * nu) * h * 0.5 * np.pi
+
+
+def corner_sum_effective(x: Array, y: Array, a: Array, b: Array, h: float, nu: float) -> Array:
+    """2πE/(1+ν)·[u_z(0) − u_z(h)] of a 2a × 2b cell by the closed form (any distance)."""
+    xp, xm, yp, ym = a - x, -a - x, b - y, -b - y
+    total = (
+        _corner_uz_effective(xp, yp, h, nu)
+        - _corner_uz_effective(xm, yp, h, nu)
+        - _corner_uz_effective(xp, ym, h, nu)
+        + _corner_uz_effective(xm, ym, h, nu)
+    )
+    return total + _edge_correction(xp, xm, yp, ym, h, nu)
+
+
+def effective_point_kernel(dx: Array, dy: Array, h: float, nu: float) -> Array:
+    """2πE/(1+ν)·[u_z(0) − u_z(h)] of a unit point force, cancellation-free [1/m]."""
+    r = np.hypot(dx, dy)
+    rho = np.sqrt(r * r + h * h)
+    return 2.0 * (1.0 - nu) * h * h / (r * rho * (r + rho)) - h * h / rho**3
+
+
+def _corner_sum(corner: Callable[[Array, Array], Array], x: Array, y: Array, a: Array, b: Array):
+    total = np.zeros(np.broadcast_shapes(x.shape, y.shape, a.shape, b.shape))
+    for sx, sy in _CORNERS:
+        total += sx * sy * corner(sx * a - x, sy * b - y)
+    return total
+
+
+def _gauss_cell(kernel: Callable[[Array, Array], Array], x, y, a, b, n: int = FAR_ORDER):
+    """∫∫ kernel(x − ξ, y − η) dξ dη over [−a, a] × [−b, b] by n × n Gauss–Legendre."""
+    t, w = _gauss(n)
+    total = np.zeros(np.broadcast_shapes(x.shape, y.shape, a.shape, b.shape))
+    for ti, wi in zip(t, w, strict=True):
+        for tj, wj in zip(t, w, strict=True):
+            total += wi * wj * kernel(x - a * ti, y - b * tj)
+    return total * a * b
+
+
+def _split(shape, x, y, a, b, dist, near_fn, far_fn, ratio: float = FAR_RATIO) -> Array:
+    """Evaluate near_fn where dist < ratio·max(a, b), far_fn elsewhere (on subsets only)."""
+    x, y, a, b, dist = np.broadcast_arrays(x, y, a, b, dist)
+    far = dist >= ratio * np.maximum(a, b)
+    out = np.empty(shape)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for mask, fn in ((~far, near_fn), (far, far_fn)):
+            if np.any(mask):
+                out[mask] = fn(x[mask], y[mask], a[mask], b[mask], mask)
+    return out
+
+
+def _inputs(x, y, a, b):
+    return (
+        finite_array("x", x),
+        finite_array("y", y),
+        positive_array("a (half-size)", a),
+        positive_array("b (half-size)", b),
+    )
+
+
+def love_uz(
+    x: ArrayLike, y: ArrayLike, z: ArrayLike, a: ArrayLike, b: ArrayLike, young, poisson
+) -> Array:
+    """Vertical displacement per unit pressure [m/Pa] at offset (x, y) [m], depth z ≥ 0 [m].
+
+    The cell is 2a × 2b [m] centred at the origin; broadcasts over all array arguments.
+    Positive = into the skin under compressive pressure.
+    """
+    e, nu = material(young, poisson)
+    x, y, a, b = _inputs(x, y, a, b)
+    z = depth_array("z", z)
+    x, y, z, a, b = np.broadcast_arrays(x, y, z, a, b)
+
+    def near(xs, ys, as_, bs, m):
+        zz = z[m]
+        return _corner_sum(lambda xc, yc: _corner_uz(xc, yc, zz, nu), xs, ys, as_, bs) / (np.pi * e)
+
+    def far(xs, ys, as_, bs, m):
+        zz = z[m]
+        c = (1.0 + nu) / (2.0 * np.pi * e)
+
+        def kern(dx, dy):
+            rho = np.sqrt(dx * dx + dy * dy + zz * zz)
+            return c * (2.0 * (1.0 - nu) / rho + zz * zz / rho**3)
+
+        return _gauss_cell(kern, xs, ys, as_, bs)
+
+    return _split(x.shape, x, y, a, b, np.sqrt(x * x + y * y + z * z), near, far)
+
+
+def _love_lateral(x, y, z, a, b, young, poisson, swap: bool) -> Array:
+    e, nu = material(young, poisson)
+    x, y, a, b = _inputs(x, y, a, b)
+    z = depth_array("z", z)
+    if swap:  # u_y is u_x with the axes exchanged
+        x, y, a, b = y, x, b, a
+    x, y, z, a, b = np.broadcast_arrays(x, y, z, a, b)
+    c = (1.0 + nu) / (2.0 * np.pi * e)
+
+    def near(xs, ys, as_, bs, m):
+        zz = z[m]
+        return c * _corner_sum(lambda xc, yc: _corner_ux(xc, yc, zz, nu), xs, ys, as_, bs)
+
+    def far(xs, ys, as_, bs, m):
+        zz = z[m]
+
+        def kern(dx, dy):
+            rho = np.sqrt(dx * dx + dy * dy + zz * zz)
+            return c * dx * (zz / rho**3 - (1.0 - 2.0 * nu) / (rho * (rho + zz)))
+
+        return _gauss_cell(kern, xs, ys, as_, bs)
+
+    return _split(x.shape, x, y, a, b, np.sqrt(x * x + y * y + z * z), near, far)
+
+
+def love_ux(
+    x: ArrayLike, y: ArrayLike, z: ArrayLike, a: ArrayLike, b: ArrayLike, young, poisson
+) -> Array:
+    """Horizontal displacement along x per unit normal pressure [m/Pa]; arguments as love_uz.
+
+    Negative for x > 0 at the surface when ν < 0.5 (material moves towards the load).
+    """
+    return _love_lateral(x, y, z, a, b, young, poisson, swap=False)
+
+
+def love_uy(
+    x: ArrayLike, y: ArrayLike, z: ArrayLike, a: ArrayLike, b: ArrayLike, young, poisson
+) -> Array:
+    """Horizontal displacement along y per unit normal pressure [m/Pa]; arguments as love_uz."""
+    return _love_lateral(x, y, z, a, b, young, poisson, swap=True)
+
+
+def love_effective(
+    x: ArrayLike,
+    y: ArrayLike,
+    a: ArrayLike,
+    b: ArrayLike,
+    thickness: float,
+    young: float,
+    poisson: float,
+    component: str = "z",
+) -> Array:
+    """Effective displacement u(0) − u(h) per unit pressure [m/Pa] of a 2a × 2b cell.
+
+    (x, y) [m] offset from the cell centre, thickness h [m]; component "z" (compression a taxel
+    measures), "x" or "y". Broadcasts over x, y, a, b.
+    """
+    e, nu = material(young, poisson)
+    h = float(positive_array("thickness", thickness))
+    x, y, a, b = _inputs(x, y, a, b)
+    if component not in ("x", "y", "z"):
+        raise ValueError(f"component must be 'x', 'y' or 'z', got {component!r}")
+    if component == "y":
+        x, y, a, b = y, x, b, a
+    x, y, a, b = np.broadcast_arrays(x, y, a, b)
+    c = (1.0 + nu) / (2.0 * np.pi * e)
+    k = 1.0 - 2.0 * nu
+
+    if component == "z":
+
+        def near_z(xs, ys, as_, bs, m):
+            return c * corner_sum_effective(xs, ys, as_, bs, h, nu)
+
+        def far_z(xs, ys, as_, bs, m):
+            return c * _gauss_cell(
+                lambda dx, dy: effective_point_kernel(dx, dy, h, nu),
+                xs,
+                ys,
+                as_,
+                bs,
+                FAR_ORDER_EFFECTIVE,
+            )
+
+        return _split(x.shape, x, y, a, b, np.hypot(x, y), near_z, far_z, FAR_RATIO_EFFECTIVE)
+
+    zero, depth = np.zeros(1), np.full(1, h)
+
+    def corner(xc, yc):
+        return _corner_ux(xc, yc, zero, nu) - _corner_ux(xc, yc, depth, nu)
+
+    def kern(dx, dy):
+        r2 = dx * dx + dy * dy
+        rho = np.sqrt(r2 + h * h)
+        return -dx * h * (k / (r2 * rho) + 1.0 / rho**3)
+
+    def near(xs, ys, as_, bs, m):
+        return c * _corner_sum(corner, xs, ys, as_, bs)
+
+    def far(xs, ys, as_, bs, m):
+        return c * _gauss_cell(kern, xs, ys, as_, bs)
+
+    return _split(x.shape, x, y, a, b, np.hypot(x, y), near, far)
+
+
+def love_uz_effective(x, y, a, b, thickness, young, poisson) -> Array:
+    """u_z(0) − u_z(h) per unit pressure [m/Pa]; shorthand for love_effective(..., "z")."""
+    return love_effective(x, y, a, b, thickness, young, poisson, "z")
