@@ -19,8 +19,11 @@ from pathlib import Path
 from typing import Any
 
 import can
+import can.interface
+import can.util
 import numpy as np
 import pytest
+from can.interfaces.virtual import VirtualBus
 
 from tactile_contact.codec import CLASS_SKIN
 from tactile_contact.layout import PatchLayout, load_layout
@@ -248,3 +251,280 @@ def test_replays_candump_log(harness_factory: Any, tmp_path: Path) -> None:
     assert got == {round(t.t / PERIOD_S): t.values.tobytes() for t in truths}
     h.spin_until(lambda: any("replay finished" in s.message for s in h.diags[-1].status), 3.0)
     assert h.diag()["CAN bus"]["_message"] == "replay finished"
+
+
+# -- (3) faults: garbage, a silent module, a failing bus --------------------------------------
+def is_good_frame(msg: can.Message, modules: set[tuple[int, int]]) -> bool:
+    """A frame the driver must accept as data: a garbage generator must not produce these."""
+    cid = msg.arbitration_id
+    return (
+        cid >> 8 == CLASS_SKIN
+        and ((cid >> 4) & 0xF, cid & 0xF) in modules
+        and len(msg.data) == 8
+        and msg.data[0] in (0x40, 0xC0)
+    )
+
+
+def garbage_frames(rng: random.Random, n: int, t: float) -> list[can.Message]:
+    """n random standard frames that are not skin data of the patch (half with skin ids)."""
+    modules = {(m.board, m.triangle) for m in patch().modules}
+    out: list[can.Message] = []
+    while len(out) < n:
+        cid = 0x400 | rng.randrange(0x100) if rng.random() < 0.5 else rng.randrange(0x800)
+        data = bytes(rng.randrange(256) for _ in range(rng.randrange(9)))
+        msg = can.Message(arbitration_id=cid, data=data, is_extended_id=False, timestamp=t)
+        if not is_good_frame(msg, modules):
+            out.append(msg)
+    return out
+
+
+def module_slice(i: int) -> slice:
+    return slice(12 * i, 12 * (i + 1))
+
+
+def check_every_reading_once(
+    msgs: list[Any], truths: dict[int, PeriodTruth], sent: set[tuple[int, int]]
+) -> None:
+    """Each sent (period, module) reading appears exactly once, not stale, with its raw values."""
+    from tactile_contact.msg import TaxelArray
+
+    seen: list[tuple[int, int]] = []
+    for msg in msgs:
+        k = stamp_index(msg)
+        status = np.frombuffer(bytes(msg.status), np.uint8)
+        raw = bytes(msg.raw)
+        for i in range(N_MODULES):
+            if not status[module_slice(i)][0] & TaxelArray.STATUS_STALE:
+                assert raw[module_slice(i)] == truths[k].values[module_slice(i)].tobytes()
+                seen.append((k, i))
+    assert len(seen) == len(set(seen)), "a reading was published twice as fresh"
+    assert set(seen) == sent, (
+        f"lost {sorted(sent - set(seen))[:5]}, extra {sorted(set(seen) - sent)[:5]}"
+    )
+
+
+def test_garbage_is_counted_and_good_modules_keep_publishing(harness_factory: Any) -> None:
+    h = harness_factory()
+    h.wait_matched()
+    rng = random.Random(11)
+    periods = list(simulator(noise_cdc=1.0, seed=5).periods(press(start_s=0.4), 2.0))
+    batches, passing = [], 0
+    for p in periods:
+        junk = garbage_frames(rng, 10_000 // len(periods), p.t)
+        passing += sum((m.arbitration_id & 0x700) == 0x400 for m in junk)  # past the bus filter
+        cuts = sorted(rng.randrange(len(junk) + 1) for _ in p.messages)
+        mixed = list(junk)
+        for j, (m, c) in enumerate(zip(p.messages, cuts, strict=True)):
+            mixed.insert(c + j, m)  # + j keeps the good frames in their order
+        batches.append(mixed)
+    assert sum(len(b) for b in batches) == 10_000 + 2 * N_MODULES * len(periods)
+    h.send(batches)
+    good_frames = 2 * N_MODULES * len(periods)
+
+    def counted() -> bool:
+        return bool(h.diags) and h.diag()["frames"]["frames"] == str(passing + good_frames)
+
+    assert h.spin_until(lambda: not h.sending() and counted(), 15.0), h.diag()["frames"]
+    h.spin_until(lambda: len(h.taxels) >= len(periods), 2.0)
+    frames = h.diag()["frames"]
+    assert frames["rejected"] == str(passing)
+    reasons = ("truncated", "unknown_id", "bad_type", "bad_status", "not_data", "unexpected_module")
+    assert sum(int(frames[f"rejected_{r}"]) for r in reasons) == passing
+    assert int(frames["rejected_truncated"]) > 0 and int(frames["rejected_bad_type"]) > 0
+    assert frames["readings"] == str(N_MODULES * len(periods))
+    assert frames["incomplete_periods"] == "0" and frames["orphan_b"] == "0"
+    sent = {(round(p.t / PERIOD_S), i) for p in periods for i in range(N_MODULES)}
+    check_every_reading_once(h.taxels, truth_by_stamp(periods), sent)
+
+
+def test_silent_module_is_flagged_stale_and_recovers(harness_factory: Any) -> None:
+    from tactile_contact.msg import TaxelArray
+
+    h = harness_factory(module_timeout_ms=100.0)
+    h.wait_matched()
+    periods = list(simulator(seed=2).periods(press(start_s=0.2, hold_s=1.0), 2.0))
+    quiet = range(30, 70)  # module 3 (board 0, triangle 3) sends nothing in these periods
+    silent_id = 0x030  # its taxel ids start at board 0 << 8 | triangle 3 << 4
+    batches, sent = [], set()
+    for k, p in enumerate(periods):
+        keep = [m for m in p.messages if not (k in quiet and (m.arbitration_id & 0xFF) == 0x03)]
+        batches.append(keep)
+        sent |= {(k, i) for i in range(N_MODULES) if not (k in quiet and i == 3)}
+    h.send(batches)
+
+    def module3() -> dict[str, str]:
+        return h.diag()["patch hexagon module board 0 triangle 3"]
+
+    assert h.spin_until(lambda: bool(h.diags) and module3()["stale"] == "True", 5.0)
+    assert module3()["_level"] == "2"  # ERROR: silent
+    assert h.spin_until(lambda: not h.sending(), 10.0)
+    h.spin_until(lambda: len(h.taxels) >= len(periods), 2.0)
+    check_every_reading_once(h.taxels, truth_by_stamp(periods), sent)
+    # while silent, its channels are flagged STALE and the others are fresh
+    during = [m for m in h.taxels if 40 <= stamp_index(m) < 65]
+    assert len(during) == 25
+    for m in during:
+        st = np.frombuffer(bytes(m.status), np.uint8)
+        assert np.all(st[module_slice(3)] & TaxelArray.STATUS_STALE)
+        assert not np.any(np.delete(st, np.arange(36, 48)) & TaxelArray.STATUS_STALE)
+    assert list(during[0].taxel_ids[36:38]) == [silent_id, silent_id + 1]
+    h.spin_for(0.3)
+    assert module3()["missed_periods"] == str(len(quiet))
+
+
+class FaultyVirtualBus(VirtualBus):
+    """A virtual bus whose receive fails at random (before taking a frame) or always when down.
+
+    Registered as python-can interface ``faulty_virtual`` by the test, as a plugin would be.
+    """
+
+    error_rate = 0.0
+    down = False
+    rng = random.Random(7)
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        if FaultyVirtualBus.down:
+            raise can.CanInitializationError("injected: interface down")
+        super().__init__(*args, **kwargs)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if FaultyVirtualBus.down or self.rng.random() < FaultyVirtualBus.error_rate:
+            raise can.CanOperationError("injected receive error")
+        return super()._recv_internal(timeout)
+
+
+@pytest.fixture
+def faulty_interface(monkeypatch: pytest.MonkeyPatch) -> type[FaultyVirtualBus]:
+    backends = dict(can.interfaces.BACKENDS, faulty_virtual=(__name__, "FaultyVirtualBus"))
+    monkeypatch.setattr(can.interfaces, "BACKENDS", backends)
+    monkeypatch.setattr(can.interface, "BACKENDS", backends)
+    monkeypatch.setattr(can.util, "VALID_INTERFACES", frozenset(backends))
+    monkeypatch.setattr(FaultyVirtualBus, "error_rate", 0.1)
+    monkeypatch.setattr(FaultyVirtualBus, "down", False)
+    return FaultyVirtualBus
+
+
+def test_bus_errors_are_counted_and_the_bus_reconnects(
+    harness_factory: Any, faulty_interface: type[FaultyVirtualBus]
+) -> None:
+    h = harness_factory(
+        interface="faulty_virtual", reconnect_after_errors=20, reconnect_interval_s=0.05
+    )
+    h.wait_matched()
+    periods = list(simulator(seed=4).periods(None, 1.0))
+    h.send(p.messages for p in periods)
+    assert h.spin_until(lambda: not h.sending() and len(h.taxels) >= len(periods), 10.0)
+    sent = {(round(p.t / PERIOD_S), i) for p in periods for i in range(N_MODULES)}
+    check_every_reading_once(h.taxels, truth_by_stamp(periods), sent)
+    h.spin_for(0.25)
+    bus = h.diag()["CAN bus"]
+    assert int(bus["bus_errors"]) > 10 and bus["reconnects"] == "0"
+    # the interface goes down: receive and reopening fail until it comes back
+    faulty_interface.down = True
+    h.spin_for(0.4)
+    faulty_interface.down = False
+    assert h.spin_until(lambda: h.diag()["CAN bus"]["reconnects"] == "1", 3.0)
+    assert int(h.diag()["CAN bus"]["reconnect_attempts"]) >= 2
+    more = list(simulator(seed=4).periods(None, 0.4, start_s=2.0))
+    n_before = len(h.taxels)
+    h.send(p.messages for p in more)
+    assert h.spin_until(lambda: len(h.taxels) >= n_before + len(more), 5.0), (
+        "no data after reconnect"
+    )
+
+
+# -- (4) tare ---------------------------------------------------------------------------------
+def test_tare_service_zeroes_a_held_contact(harness_factory: Any) -> None:
+    from std_srvs.srv import Trigger
+
+    h = harness_factory()
+    h.wait_matched()
+    client = h.listener.create_client(Trigger, "/skin_driver/tare")
+    assert h.spin_until(client.service_is_ready, 5.0)
+    ind = press(start_s=0.2, hold_s=5.0)  # ramped in by 0.4 s, then held
+    periods = list(simulator(seed=8).periods(ind, 1.2))
+    h.send(p.messages[:] for p in periods[:40])
+    assert h.spin_until(lambda: len(h.taxels) >= 40, 5.0)
+    held = max(h.taxels[-1].delta_c)
+    assert held > 10 * quantum(), "the held contact is reported before tare"
+    future = client.call_async(Trigger.Request())
+    assert h.spin_until(future.done, 5.0)
+    assert future.result().success, future.result().message
+    n = len(h.taxels)
+    h.send(p.messages for p in periods[40:])
+    assert h.spin_until(lambda: len(h.taxels) >= n + 10, 5.0)
+    after = np.abs(np.asarray(h.taxels[-1].delta_c))
+    assert after.max() <= quantum() * 1.001, "after tare the held contact reads zero"
+
+
+# -- (5) parameters and configuration failures -----------------------------------------------
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [
+        ("max_wait_ms", 0.0),
+        ("period_ms", 300),
+        ("bitrate", -1),
+        ("stamp_source", "gps"),
+        ("contact_on_counts", 1000.0),
+    ],
+)
+def test_out_of_range_parameters_are_rejected(ros_context: Any, name: str, value: Any) -> None:
+    from rclpy.exceptions import InvalidParameterValueException
+    from rclpy.parameter import Parameter
+
+    from tactile_contact.nodes.skin_driver import SkinDriver
+
+    with pytest.raises(InvalidParameterValueException, match=name):
+        SkinDriver(
+            context=ros_context,
+            parameter_overrides=[Parameter("autostart", value=False), Parameter(name, value=value)],
+        )
+    node = SkinDriver(
+        context=ros_context, parameter_overrides=[Parameter("autostart", value=False)]
+    )
+    try:
+        result = node.set_parameters([Parameter(name, value=value)])[0]
+        assert (not result.successful and name in result.reason) or "range" in result.reason
+    finally:
+        node.destroy_node()
+
+
+@pytest.mark.parametrize(
+    ("overrides", "logged"),
+    [
+        ({"interface": "no_such_interface"}, "cannot open CAN bus"),
+        ({"interface": "virtual", "layout": "/nonexistent/layout.yaml"}, "cannot read"),
+        ({"interface": "virtual", "patches": ["elbow"]}, "no patch named 'elbow'"),
+    ],
+    ids=["bus", "layout", "patch"],
+)
+def test_configure_reports_failure_and_stays_unconfigured(
+    ros_context: Any, overrides: dict[str, Any], logged: str, capfd: pytest.CaptureFixture[str]
+) -> None:
+    from rclpy.parameter import Parameter
+
+    from tactile_contact.nodes.skin_driver import SkinDriver
+
+    params = {"layout": str(LAYOUT), **overrides}  # autostart: configure runs in the constructor
+    node = SkinDriver(
+        context=ros_context, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]
+    )
+    try:
+        assert node._state_machine.current_state[1] == "unconfigured"
+        assert logged in capfd.readouterr().err
+    finally:
+        node.destroy_node()
+
+
+def test_send_config_writes_host_commands(harness_factory: Any) -> None:
+    rx = can.Bus(interface="virtual", channel="test_send_config_writes_host_commands-0")
+    try:
+        harness_factory(send_config=True, skin_type=2, cdc_offset=0x1234)
+        got = [rx.recv(1.0) for _ in range(3)]
+    finally:
+        rx.shutdown()
+    assert [(m.arbitration_id, bytes(m.data)) for m in got if m is not None] == [
+        (0x200, bytes([0x4D, 2, 20, 240])),
+        (0x200, bytes([0x50, 0, 5, 2, 1, 0x34, 0x12])),
+        (0x200, bytes([0x07, 0])),
+    ]

@@ -140,14 +140,11 @@ class SkinDriver(LifecycleNode):
     """
 
     def __init__(self, node_name: str = "skin_driver", **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
-        for name, default, text, options in PARAMETERS:
-            cm.declare_parameter(self, name, default, text, **options)
-        self._names = [spec[0] for spec in PARAMETERS]
-        cm.log_parameters(self, self._names)
+        # State first: a constructor that fails on a bad parameter still gets destroy_node().
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._bus: Any = None
         self._stream: SkinStream | None = None
         self._policy: BusErrorPolicy | None = None
         self._pubs: dict[str, Publisher] = {}
@@ -155,6 +152,11 @@ class SkinDriver(LifecycleNode):
         self._diag_timer: Timer | None = None
         self._tare_srv: Any = None
         self._params: dict[str, Any] = {}
+        super().__init__(node_name, **kwargs)
+        for name, default, text, options in PARAMETERS:
+            cm.declare_parameter(self, name, default, text, **options)
+        self._names = [spec[0] for spec in PARAMETERS]
+        cm.log_parameters(self, self._names)
         if self._params_value("autostart") and self.trigger_configure() == SUCCESS:
             self.trigger_activate()
 
@@ -287,7 +289,7 @@ class SkinDriver(LifecycleNode):
     def _close(self) -> None:
         """Stop the thread, close the bus, destroy what configure created."""
         self._stop_thread()
-        bus, self._bus = getattr(self, "_bus", None), None
+        bus, self._bus = self._bus, None
         if bus is not None:
             try:
                 bus.shutdown()

@@ -31,6 +31,8 @@ from tactile_contact.layout import PatchLayout
 from tactile_contact.modules import CHANNELS_PER_MODULE, taxel_id
 
 SKIN_MASK = 0x700
+#: Readings more than this fraction of a period apart belong to different periods.
+COHERENCE = 0.75
 
 
 class ReplayBus:
@@ -192,7 +194,8 @@ class _PatchState:
     oor: NDArray[np.bool_]
     err: NDArray[np.bool_]
     seen: NDArray[np.bool_]
-    first_pending: float = math.inf
+    first_pending: float = math.inf  # monotonic time of the first pending reading [s]
+    oldest_pending_stamp: float = math.inf  # receive time of the oldest pending reading [s]
     newest_stamp: float = -math.inf
     published: int = 0
     stale_publications: int = 0
@@ -317,7 +320,9 @@ class SkinStream:
         st, i = self._where[reading.key]
         out: list[PatchFrame] = []
         m = st.modules[i]
-        if m.fresh:  # a second reading before publication: publish the first one now
+        # A second reading of a module, or a reading of a later period than those pending,
+        # publishes the pending ones first: a message never mixes periods nor drops a reading.
+        if m.fresh or reading.timestamp - st.oldest_pending_stamp > COHERENCE * self.period_s:
             out.append(self._emit(st))
         if math.isfinite(m.last_stamp):
             gap = reading.timestamp - m.last_stamp
@@ -330,6 +335,7 @@ class SkinStream:
         st.seen[sl] = True
         m.fresh, m.last_seen, m.last_stamp = True, now, reading.timestamp
         st.first_pending = min(st.first_pending, now)
+        st.oldest_pending_stamp = min(st.oldest_pending_stamp, reading.timestamp)
         st.newest_stamp = max(st.newest_stamp, reading.timestamp)
         if self._start is None:
             self._start = now
@@ -358,6 +364,7 @@ class SkinStream:
         for m in st.modules:
             m.fresh = False
         st.first_pending = math.inf
+        st.oldest_pending_stamp = math.inf
         st.published += 1
         if not fresh.all():
             st.stale_publications += 1
