@@ -22,11 +22,15 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from tactile_contact.sensor import DEFAULT_FARAD_PER_COUNT, DEFAULT_SHIFT, value_count_farad
+
+if TYPE_CHECKING:
+    from tactile_contact.layout import PatchLayout
 
 STATUS_OK = 0
 STATUS_DISABLED = 1
@@ -207,6 +211,23 @@ class BaselineTracker:
         self._nbr = nbr.astype(np.float64)
         self._recent: deque[NDArray[np.float64]] = deque(maxlen=cfg.tare_window)
         self.recalibrate()
+
+    @classmethod
+    def from_patch(
+        cls, patch: PatchLayout, config: BaselineConfig | None = None
+    ) -> BaselineTracker:
+        """A tracker of every channel of a layout patch (layout order, pads and disabled
+        channels included and flagged), with its positions, modules and sensor gain."""
+        xy = patch.channel_xy()
+        return cls(
+            len(xy),
+            valid=patch.valid_mask(),
+            module_index=np.repeat(np.arange(len(patch.modules)), 12),
+            positions=xy,
+            farad_per_count=patch.sensor.farad_per_count,
+            shift=patch.sensor.shift,
+            config=config,
+        )
 
     def _mask(self, name: str, m: ArrayLike | None, default: bool) -> NDArray[np.bool_]:
         if m is None:

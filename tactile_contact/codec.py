@@ -589,3 +589,58 @@ class PeriodAssembler:
             mc.error_readings += 1
         self.counters.readings += 1
         return r
+
+
+# --------------------------------------------------------------------------------------------
+# Patch buffer: module readings → the channel arrays of one patch.
+
+
+class PatchBuffer:
+    """Latest readings of a patch's modules as (12·M,) arrays in layout order.
+
+    The driver puts every :class:`SkinReading` of the patch's modules here and, once per
+    publication, takes the arrays (and which channels are fresh) for the baseline tracker.
+
+    Args:
+        modules: (board, triangle) of each module, in layout order.
+        no_load: value the arrays hold before a module's first reading [counts].
+    """
+
+    def __init__(self, modules: Iterable[tuple[int, int]], no_load: int = 240) -> None:
+        mods = [(_byte("board", b, 0, 15), _byte("triangle", t, 0, 15)) for b, t in modules]
+        if not mods or len(set(mods)) != len(mods):
+            raise ValueError(f"modules must be a non-empty list of unique pairs, got {mods}")
+        self.modules = mods
+        self._slot = {m: i for i, m in enumerate(mods)}
+        n = CHANNELS * len(mods)
+        self.raw = np.full(n, _byte("no_load", no_load), dtype=np.uint8)
+        self.fresh = np.zeros(n, dtype=bool)
+        self.out_of_range = np.zeros(n, dtype=bool)
+        self.module_error = np.zeros(n, dtype=bool)
+        self.seen = np.zeros(len(mods), dtype=bool)
+        self.stamp = -math.inf
+
+    def put(self, reading: SkinReading) -> bool:
+        """Store a reading; False if its module is not in this patch."""
+        i = self._slot.get((reading.board, reading.triangle))
+        if i is None:
+            return False
+        sl = slice(CHANNELS * i, CHANNELS * (i + 1))
+        self.raw[sl] = reading.values
+        self.fresh[sl] = True
+        self.out_of_range[sl] = reading.out_of_range
+        self.module_error[sl] = reading.error_flags & (ERROR_I2C | ERROR_NOT_CONNECTED) != 0
+        self.seen[i] = True
+        self.stamp = max(self.stamp, reading.timestamp)
+        return True
+
+    @property
+    def complete(self) -> bool:
+        """Every module delivered a reading since the last :meth:`take`."""
+        return bool(np.all(self.fresh[::CHANNELS]))
+
+    def take(self) -> tuple[NDArray[np.uint8], NDArray[np.bool_], float]:
+        """(raw copy, fresh copy, newest receive time [s]); clears the fresh flags."""
+        out = self.raw.copy(), self.fresh.copy(), self.stamp
+        self.fresh[:] = False
+        return out

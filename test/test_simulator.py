@@ -188,3 +188,41 @@ def test_layout_patch_through_the_forward_model() -> None:
     ref = ForwardModel(xy, 2e-3, 2.1e5, 0.5).compression(HertzSphere(6e-3), 1.0, centre)
     assert np.allclose(p.truth.compression, ref)
     assert p.truth.compression[4 * 12 + 3] > 0 and p.truth.values[4 * 12 + 3] < 240
+
+
+def test_end_to_end_held_contact_through_log_and_baseline(tmp_path: Path) -> None:
+    """Simulator → candump log → assembler → patch buffer → baseline: ΔC matches the truth
+    within quantisation, and a 120 s hold is still reported at ≥ 90 %."""
+    from tactile_contact.baseline import BaselineTracker
+    from tactile_contact.codec import PatchBuffer
+
+    sim = _sim(seed=11, period_s=0.05, noise_cdc=1.5, rest_spread_cdc=8, drift_cdc_per_s=0.01)
+    ind = Indentation.press("sphere", 2.0, tuple(XY[3]), start_s=3.0, ramp_s=0.3, hold_s=120.0)
+    path = tmp_path / "hold.log"
+    truths = write_log(path, sim.periods(ind, 126.0))
+    asm = PeriodAssembler()
+    buf = PatchBuffer(MODULES)
+    tracker = BaselineTracker(len(XY), positions=XY)
+    results = []
+    for m in can.LogReader(path):
+        r = asm.feed(m)
+        if r is not None:
+            buf.put(r)
+            if buf.complete:
+                raw, fresh, stamp = buf.take()
+                results.append((stamp, tracker.update(raw, stamp, fresh=fresh)))
+    assert len(results) == len(truths) and asm.counters.rejected == 0
+    lsb = SensorParams().value_count_farad
+    i = 3
+
+    def window(t0, t1):
+        got = np.mean([r.delta_c for t, r in results if t0 <= t < t1], axis=0)
+        want = np.mean([tr.delta_c for tr in truths if t0 <= tr.t < t1], axis=0)
+        return got, want
+
+    got, want = window(4.0, 5.0)
+    assert want[i] > 5 * lsb
+    assert np.all(np.abs(got - want) < 1.0 * lsb)  # quantisation ± noise, averaged
+    got_end, want_end = window(122.0, 123.0)
+    assert got_end[i] >= 0.9 * got[i]
+    assert np.all(np.abs(got_end - want_end) < 1.5 * lsb)
