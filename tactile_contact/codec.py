@@ -436,6 +436,7 @@ class PeriodAssembler:
         strict_status: bool = False,
     ) -> None:
         self.id_classes = tuple(sorted({_byte("id_class", c, 0, 7) for c in id_classes}))
+        self._class_set = frozenset(self.id_classes)
         if not self.id_classes:
             raise ValueError("id_classes must name at least one class")
         for name, v in (
@@ -505,25 +506,32 @@ class PeriodAssembler:
         """Process one standard data frame given as id, data and receive time [s]."""
         c = self.counters
         c.frames += 1
-        try:
-            f = decode_frame(can_id, data, timestamp, self.id_classes, self.strict_status)
-        except TruncatedFrame as exc:
-            c.truncated += 1
-            self.last_error = exc
+        # Fast path for well-formed frames; anything else goes through decode_frame, whose
+        # exception names what is wrong.
+        kind = data[0] if len(data) >= 8 else -1
+        if not (
+            0 <= can_id <= 0x7FF
+            and (can_id >> 8) in self._class_set
+            and (
+                kind == FRAME_A or (kind == FRAME_B and not (self.strict_status and data[7] & 0xC))
+            )
+        ):
+            try:
+                decode_frame(can_id, data, timestamp, self.id_classes, self.strict_status)
+            except TruncatedFrame as exc:
+                c.truncated += 1
+                self.last_error = exc
+            except UnknownId as exc:
+                c.unknown_id += 1
+                self.last_error = exc
+            except BadFrameType as exc:
+                c.bad_type += 1
+                self.last_error = exc
+            except BadStatus as exc:
+                c.bad_status += 1
+                self.last_error = exc
             return None
-        except UnknownId as exc:
-            c.unknown_id += 1
-            self.last_error = exc
-            return None
-        except BadFrameType as exc:
-            c.bad_type += 1
-            self.last_error = exc
-            return None
-        except BadStatus as exc:
-            c.bad_status += 1
-            self.last_error = exc
-            return None
-        key = (f.board << 4) | f.triangle
+        key = can_id & 0xFF
         if self._modules is not None and key not in self._modules:
             c.unexpected_module += 1
             self.last_error = UnknownId("module not configured", can_id, len(data))
@@ -531,15 +539,26 @@ class PeriodAssembler:
         st = self._state.get(key)
         if st is None:
             st = self._state[key] = _Pending()
-        t = f.timestamp if math.isfinite(f.timestamp) else 0.0
-        return self._pair_a(st, f, t) if f.kind == FRAME_A else self._pair_b(st, f, t)
+        t = timestamp if math.isfinite(timestamp) else 0.0
+        if kind == FRAME_A:
+            return self._pair_a(st, key, can_id >> 8, bytes(data[1:8]), t)
+        status = (data[6] << 8) | data[7]
+        return self._pair_b(
+            st,
+            key,
+            can_id >> 8,
+            bytes(data[1:6]),
+            status >> OOR_SHIFT,
+            status & ERROR_FLAGS_MASK,
+            t,
+        )
 
     # -- pairing --------------------------------------------------------------------------
-    def _pair_a(self, st: _Pending, f: SkinFrame, t: float) -> SkinReading | None:
+    def _pair_a(self, st: _Pending, key: int, cls: int, va: bytes, t: float) -> SkinReading | None:
         mc, c = st.counters, self.counters
         mc.frames_a += 1
         if st.a is not None:
-            if st.a == f.values and abs(t - st.ta) <= self.duplicate_window_s:
+            if st.a == va and abs(t - st.ta) <= self.duplicate_window_s:
                 mc.duplicates += 1
                 c.duplicates += 1
                 return None
@@ -549,37 +568,39 @@ class PeriodAssembler:
             if abs(t - st.tb) <= self.pair_window_s:
                 mc.reordered += 1
                 c.reordered += 1
-                return self._complete(st, f, f.values, t)
+                return self._complete(st, key, cls, va, t)
             mc.orphan_b += 1
             c.orphan_b += 1
             st.b = None
-        st.a, st.ta = f.values, t
+        st.a, st.ta = va, t
         return None
 
-    def _pair_b(self, st: _Pending, f: SkinFrame, t: float) -> SkinReading | None:
+    def _pair_b(
+        self, st: _Pending, key: int, cls: int, vb: bytes, oor: int, flags: int, t: float
+    ) -> SkinReading | None:
         mc, c = st.counters, self.counters
         mc.frames_b += 1
         if st.a is not None:
             if abs(t - st.ta) <= self.pair_window_s:
-                st.b, st.b_oor, st.b_flags = f.values, f.oor_mask, f.error_flags
-                return self._complete(st, f, st.a, t)
+                st.b, st.b_oor, st.b_flags = vb, oor, flags
+                return self._complete(st, key, cls, st.a, t)
             mc.incomplete += 1
             c.incomplete += 1
             st.a = None
         if st.b is not None:
-            if st.b == f.values and abs(t - st.tb) <= self.duplicate_window_s:
+            if st.b == vb and abs(t - st.tb) <= self.duplicate_window_s:
                 mc.duplicates += 1
                 c.duplicates += 1
                 return None
             mc.orphan_b += 1
             c.orphan_b += 1
-        st.b, st.b_oor, st.b_flags, st.tb = f.values, f.oor_mask, f.error_flags, t
+        st.b, st.b_oor, st.b_flags, st.tb = vb, oor, flags, t
         return None
 
-    def _complete(self, st: _Pending, f: SkinFrame, a: bytes, t: float) -> SkinReading:
+    def _complete(self, st: _Pending, key: int, cls: int, a: bytes, t: float) -> SkinReading:
         assert st.b is not None
         values = np.frombuffer(a + st.b, dtype=np.uint8).copy()
-        r = SkinReading(f.board, f.triangle, values, st.b_oor, st.b_flags, t, f.id_class)
+        r = SkinReading(key >> 4, key & 0xF, values, st.b_oor, st.b_flags, t, cls)
         st.a = st.b = None
         mc = st.counters
         mc.readings += 1
