@@ -484,7 +484,8 @@ def test_out_of_range_parameters_are_rejected(ros_context: Any, name: str, value
     )
     try:
         result = node.set_parameters([Parameter(name, value=value)])[0]
-        assert (not result.successful and name in result.reason) or "range" in result.reason
+        assert not result.successful
+        assert name in result.reason or "range" in result.reason, result.reason
     finally:
         node.destroy_node()
 
@@ -528,3 +529,32 @@ def test_send_config_writes_host_commands(harness_factory: Any) -> None:
         (0x200, bytes([0x50, 0, 5, 2, 1, 0x34, 0x12])),
         (0x200, bytes([0x07, 0])),
     ]
+
+
+@pytest.mark.parametrize("node", ["skin_driver", "skin_simulator"])
+def test_config_yaml_loads_as_params_file_with_the_declared_defaults(
+    ros_context: Any, node: str
+) -> None:
+    import importlib
+
+    import yaml
+    from rclpy.parameter import Parameter
+
+    module = importlib.import_module(f"tactile_contact.nodes.{node}")
+    path = LAYOUT.parent / f"{node}.yaml"
+    values = yaml.safe_load(path.read_text())[node]["ros__parameters"]
+    declared = {name: default for name, default, _, _ in module.PARAMETERS}
+    assert set(values) <= set(declared)
+    assert {k: v for k, v in declared.items() if k in values} == values
+    if node == "skin_driver":  # rcl parses the file and the node accepts every value
+        n = module.SkinDriver(
+            context=ros_context,
+            cli_args=["--ros-args", "--params-file", str(path)],
+            parameter_overrides=[Parameter("autostart", value=False)],
+        )
+        try:
+            for name, value in values.items():
+                if name != "autostart":
+                    assert n.get_parameter(name).value == value, name
+        finally:
+            n.destroy_node()

@@ -1,0 +1,84 @@
+"""The real ``skin_simulator`` node: frames on a virtual bus, truth on ``<patch>/contact_truth``."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import can
+import pytest
+
+pytestmark = pytest.mark.ros
+
+LAYOUT = Path(__file__).resolve().parents[1] / "config" / "hexagon_patch.yaml"
+
+
+def make_node(ctx: Any, channel: str, **params: Any) -> Any:
+    from rclpy.parameter import Parameter
+
+    from tactile_contact.nodes.skin_simulator import SkinSimulatorNode
+
+    values = {"layout": str(LAYOUT), "interface": "virtual", "channel": channel, **params}
+    return SkinSimulatorNode(
+        context=ctx, parameter_overrides=[Parameter(k, value=v) for k, v in values.items()]
+    )
+
+
+def test_frames_and_truth_follow_the_scenario(ros_context: Any) -> None:
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from tactile_contact.codec import PeriodAssembler
+    from tactile_contact.layout import load_layout
+    from tactile_contact.msg import ContactState
+    from test.rosutil import spin_until
+
+    rx = can.Bus(interface="virtual", channel="sim-node-1")
+    listener = Node("listener", context=ros_context)
+    truths: list[Any] = []
+    qos = QoSProfile(depth=500, reliability=ReliabilityPolicy.BEST_EFFORT)
+    listener.create_subscription(ContactState, "hexagon/contact_truth", truths.append, qos)
+    node = make_node(
+        ros_context, "sim-node-1", scenario="press", period_ms=20, cycle_s=2.0, force_n=3.0
+    )
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    executor.add_node(listener)
+    frames: list[can.Message] = []
+    try:
+        t_end = time.monotonic() + 1.5
+        while time.monotonic() < t_end:
+            executor.spin_once(timeout_sec=0.01)
+            while (m := rx.recv(0.0)) is not None:
+                frames.append(m)
+        assert spin_until(executor, lambda: len(truths) >= 60, 3.0)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        listener.destroy_node()
+        rx.shutdown()
+    readings = PeriodAssembler().feed_many(frames)
+    assert len(readings) >= 6 * 60
+    assert {r.key for r in readings} == {(0, t) for t in range(6)}
+    period_ends = {round(r.timestamp, 6) for r in readings}
+    patch = load_layout(LAYOUT).patch("hexagon")
+    xy = patch.taxel_xy()
+    center = (xy.min(axis=0) + xy.max(axis=0)) / 2
+    forces = [t.total_force for t in truths]
+    assert forces[0] == 0.0 and max(forces) == pytest.approx(3.0)
+    for t in truths:
+        assert t.header.frame_id == "skin_hexagon" and t.patch == "hexagon"
+        stamp = round(t.header.stamp.sec + t.header.stamp.nanosec * 1e-9, 6)
+        assert stamp in period_ends, "truth is stamped like the frame completing its period"
+        if t.total_force > 0:
+            assert t.in_contact and t.contact_area > 0
+            assert (t.center_of_pressure.x, t.center_of_pressure.y) == pytest.approx(tuple(center))
+
+
+def test_bad_scenario_is_rejected(ros_context: Any) -> None:
+    from rclpy.exceptions import InvalidParameterValueException
+
+    with pytest.raises(InvalidParameterValueException, match="scenario"):
+        make_node(ros_context, "sim-node-2", scenario="dance")
