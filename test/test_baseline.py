@@ -238,3 +238,39 @@ def test_slide_then_hold_keeps_the_contact() -> None:
     assert i == 0
     assert got[i] >= 0.9 * truth_dev[i]
     assert res[-1][1].frozen[i] and res[-1][1].contact[i]
+
+
+def test_from_layout_patch() -> None:
+    try:
+        from tactile_contact.layout import parse_layout
+    except ImportError as exc:  # written in parallel by the reconstruction engineer
+        pytest.skip(f"layout module not available yet: {exc}")
+    layout = parse_layout(
+        {
+            "schema_version": 1,
+            "patches": [
+                {
+                    "name": "p",
+                    "frame_id": "f",
+                    "modules": [
+                        {"type": "icub_v2_10pad", "board": 1, "triangle": 0, "position": [0, 0]},
+                        {
+                            "type": "roboskin12",
+                            "board": 1,
+                            "triangle": 1,
+                            "position": [0.03, 0],
+                            "disabled_channels": [4],
+                        },
+                    ],
+                    "sensor": {"farad_per_count": 0.25e-15, "shift": 3},
+                }
+            ],
+        }
+    )
+    tr = BaselineTracker.from_patch(layout.patches[0], BaselineConfig(calibration_samples=1))
+    assert tr.n == 24
+    assert sorted(np.flatnonzero(~tr.valid)) == [6, 10, 16]  # two thermal pads, one disabled
+    tr.update(np.full(24, 240), 0.0)
+    r = tr.update(np.full(24, 239), 0.05)
+    assert r.delta_c[0] == pytest.approx(0.25e-15 * 8)  # gain and shift from the layout
+    assert np.all(r.status[[6, 10, 16]] & STATUS_DISABLED) and np.all(r.delta_c[[6, 10, 16]] == 0)
