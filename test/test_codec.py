@@ -337,3 +337,27 @@ def test_patch_buffer() -> None:
     assert buf.module_error[12:].all() and not buf.module_error[:12].any()
     with pytest.raises(ValueError, match="unique"):
         PatchBuffer([(0, 1), (0, 1)])
+
+
+@given(
+    plan=st.lists(st.tuples(st.booleans(), st.booleans(), st.booleans()), min_size=1, max_size=40)
+)
+def test_assembler_never_mixes_periods(plan) -> None:
+    """Random loss of A or B and swapped order within a period: every reading is one period's
+    own A and B, and every period whose two frames arrived is delivered."""
+    asm = PeriodAssembler(pair_window_s=0.01)
+    stream = []
+    complete = set()
+    for k, (keep_a, keep_b, swap) in enumerate(plan):
+        a, b = reading_messages(3, 7, [k] * 7 + [k + 100] * 5, timestamp=0.02 * k, gap_s=1e-4)
+        frames = [f for f, keep in ((a, keep_a), (b, keep_b)) if keep]
+        stream += frames[::-1] if swap else frames
+        if keep_a and keep_b:
+            complete.add(k)
+    got = asm.feed_many(stream)
+    for r in got:
+        k = int(r.values[0])
+        assert list(r.values) == [k] * 7 + [k + 100] * 5
+    assert sorted(int(r.values[0]) for r in got) == sorted(complete)
+    c = asm.counters
+    assert c.readings == len(complete)
