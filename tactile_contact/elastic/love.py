@@ -45,10 +45,17 @@ def _gauss(n: int) -> tuple[Array, Array]:
     return np.polynomial.legendre.leggauss(n)
 
 
+_HUGE = 1e300
+
+
+def _ratio(num: Array, den: Array) -> Array:
+    """num/den for den ≥ 0, 0 where den = 0, clamped to ±1e300 (subnormal den overflows)."""
+    return np.clip(num / np.where(den > 0.0, den, 1.0), -_HUGE, _HUGE) * (den > 0.0)
+
+
 def _xasinh(x: Array, y: Array, q: Array) -> Array:
-    """x·asinh(y/q) with the limit 0 where q = 0 (then x = 0 too)."""
-    safe = np.where(q > 0.0, q, 1.0)
-    return np.where(q > 0.0, x * np.arcsinh(y / safe), 0.0)
+    """x·asinh(y/q) with the limit 0 where q = 0 (then x = 0 too); |x| ≤ q keeps it finite."""
+    return x * np.arcsinh(_ratio(y, q))
 
 
 def _corner_uz(xc: Array, yc: Array, z: Array, nu: float) -> Array:
@@ -68,9 +75,7 @@ def _corner_ux(xc: Array, yc: Array, z: Array, nu: float) -> Array:
     log_term = np.where(rz > 0.0, yc * np.log(np.where(rz > 0.0, rz, 1.0)), 0.0)
     # X·[atan(Y/X) − atan(zY/(XR))] merged into one atan2 (no 1/X, no cancellation).
     ang = xc * np.arctan2(xc * yc * (xc * xc + yc * yc), rz * (xc * xc * r + z * yc * yc))
-    return 2.0 * (1.0 - nu) * z * np.arcsinh(yc / np.where(qx > 0, qx, 1.0)) * (qx > 0) + (
-        1.0 - 2.0 * nu
-    ) * (log_term + ang)
+    return 2.0 * (1.0 - nu) * z * np.arcsinh(_ratio(yc, qx)) + (1.0 - 2.0 * nu) * (log_term + ang)
 
 
 def _corner_uz_effective(xc: Array, yc: Array, h: float, nu: float) -> Array:
