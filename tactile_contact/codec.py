@@ -45,6 +45,7 @@ ERROR_NOT_CONNECTED = 0x2
 ERROR_FLAGS_MASK = 0xF
 OOR_SHIFT = 4
 OOR_MASK_ALL = (1 << CHANNELS) - 1
+_CHANNEL_BITS = 1 << np.arange(CHANNELS)
 
 CMD_SET_TXMODE = 0x07
 CMD_SET_BRD_CFG = 0x4D
@@ -328,7 +329,7 @@ class SkinReading:
     @property
     def out_of_range(self) -> NDArray[np.bool_]:
         """(12,) True where the module flagged the channel out of range."""
-        return (self.oor_mask >> np.arange(CHANNELS)) & 1 == 1
+        return (self.oor_mask & _CHANNEL_BITS) != 0
 
     @property
     def key(self) -> tuple[int, int]:
@@ -641,6 +642,10 @@ class PatchBuffer:
         self.seen = np.zeros(len(mods), dtype=bool)
         self.stamp = -math.inf
 
+    def slot(self, board: int, triangle: int) -> int | None:
+        """Index of a module in this patch (None if it is not in it)."""
+        return self._slot.get((board, triangle))
+
     def put(self, reading: SkinReading) -> bool:
         """Store a reading; False if its module is not in this patch."""
         i = self._slot.get((reading.board, reading.triangle))
@@ -649,7 +654,7 @@ class PatchBuffer:
         sl = slice(CHANNELS * i, CHANNELS * (i + 1))
         self.raw[sl] = reading.values
         self.fresh[sl] = True
-        self.out_of_range[sl] = reading.out_of_range
+        self.out_of_range[sl] = (reading.oor_mask & _CHANNEL_BITS) != 0
         self.module_error[sl] = reading.error_flags & (ERROR_I2C | ERROR_NOT_CONNECTED) != 0
         self.seen[i] = True
         self.stamp = max(self.stamp, reading.timestamp)

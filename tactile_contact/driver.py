@@ -150,8 +150,8 @@ class SkinDriverCore:
             return []
         self._rates[reading.key].times.append(reading.timestamp)
         out = []
-        i = p.modules.index(reading.key)
-        if p.buffer.fresh[CHANNELS * i]:
+        i = p.buffer.slot(reading.board, reading.triangle)
+        if i is not None and p.buffer.fresh[CHANNELS * i]:
             # This module's next period arrived before the others: publish what we have.
             out.append(self._publish(p))
         p.buffer.put(reading)
