@@ -25,12 +25,10 @@ from tactile_contact.elastic.boussinesq import (
     positive_array,
 )
 from tactile_contact.elastic.love import (
-    FAR_ORDER_EFFECTIVE,
-    FAR_RATIO_EFFECTIVE,
     _corner_uz_effective,
     _edge_correction,
-    _gauss_cell,
-    effective_point_kernel,
+    effective_far_plan,
+    gauss_effective,
     love_effective,
     love_uz,
 )
@@ -135,15 +133,11 @@ def love_matrix(
                     h,
                     nu,
                 )
-            kk, nn = np.nonzero(np.hypot(dx, dy) >= FAR_RATIO_EFFECTIVE * size)
+            far, order = effective_far_plan(np.hypot(dx, dy), size, h, nu)
+            kk, nn = np.nonzero(far)
             if kk.size:
-                blk[kk, nn] = _gauss_cell(
-                    lambda u, v: effective_point_kernel(u, v, h, nu),
-                    dx[kk, nn],
-                    dy[kk, nn],
-                    a[nn],
-                    b[nn],
-                    FAR_ORDER_EFFECTIVE,
+                blk[kk, nn] = gauss_effective(
+                    dx[kk, nn], dy[kk, nn], a[nn], b[nn], h, nu, order[kk, nn]
                 )
             out[rows] = scale * blk
     return out

@@ -126,10 +126,14 @@ def _effective_zz(r: Array, h: float, e: float, nu: float) -> Array:
     with np.errstate(divide="ignore", invalid="ignore"):
         rho = np.sqrt(r * r + h * h)
         h2 = h * h
+        # 2(1−ν)/(rρ(r+ρ)) − 1/ρ³ = [h²(2ρ+r)/(ρ²(r+ρ)) − 2ν]/(rρ(r+ρ)): the 1/r³ parts
+        # cancel analytically, so small ν keeps its relative accuracy far away too.
+        base = h2 / (r * rho * (r + rho))
         out = (
             (1.0 + nu)
             / (2.0 * np.pi * e)
-            * (2.0 * (1.0 - nu) * h2 / (r * rho * (r + rho)) - h2 / (rho * rho * rho))
+            * base
+            * (h2 * (2.0 * rho + r) / (rho * rho * (r + rho)) - 2.0 * nu)
         )
     return np.where(r == 0.0, np.inf, out)
 
@@ -187,7 +191,11 @@ def _block_effective(x: Array, y: Array, h: float, e: float, nu: float) -> Array
         g[..., 1, 2] = y * lateral_from_normal
         g[..., 2, 0] = x * normal_from_lateral
         g[..., 2, 1] = y * normal_from_lateral
-        g[..., 2, 2] = c * (2.0 * (1.0 - nu) * d1 - h * h / rho**3)
+        g[..., 2, 2] = (
+            c
+            * (h * h / (r * rho * (r + rho)))
+            * (h * h * (2.0 * rho + r) / (rho * rho * (r + rho)) - 2.0 * nu)
+        )
     return g
 
 

@@ -32,10 +32,12 @@ from tactile_contact.elastic.boussinesq import (
 #: ≲ 1e-12 relative below it; 5-point Gauss errs ≲ (2·30)^(−10) above it).
 FAR_RATIO = 30.0
 FAR_ORDER = 5
-#: The same for the effective u_z(0) − u_z(h), whose canonical corner sum stays within ~2e-11
-#: up to 200 half-sizes (3-point Gauss errs ≲ (2·200)^(−6) above it).
-FAR_RATIO_EFFECTIVE = 200.0
-FAR_ORDER_EFFECTIVE = 3
+#: The effective u_z(0) − u_z(h) corner sum loses ~ε·R²·M relative (R = r/s, M = how much
+#: smaller the result is than its terms: 1 at ν = 0.5, up to r²/h² as ν → 0, where the 1/r³
+#: parts cancel). Gauss quadrature takes over where R²·M exceeds this budget (≈ 2e-11 error).
+EFFECTIVE_BUDGET = 4.0e4
+#: No quadrature closer than this many half-sizes (the corner sum is exact there anyway).
+EFFECTIVE_MIN_RATIO = 2.5
 
 _CORNERS = ((1.0, 1.0), (-1.0, 1.0), (1.0, -1.0), (-1.0, -1.0))
 
@@ -148,7 +150,8 @@ def effective_point_kernel(dx: Array, dy: Array, h: float, nu: float) -> Array:
     """2πE/(1+ν)·[u_z(0) − u_z(h)] of a unit point force, cancellation-free [1/m]."""
     r = np.hypot(dx, dy)
     rho = np.sqrt(r * r + h * h)
-    return 2.0 * (1.0 - nu) * h * h / (r * rho * (r + rho)) - h * h / rho**3
+    base = h * h / (r * rho * (r + rho))  # the form of boussinesq._effective_zz
+    return base * (h * h * (2.0 * rho + r) / (rho * rho * (r + rho)) - 2.0 * nu)
 
 
 def _corner_sum(corner: Callable[[Array, Array], Array], x: Array, y: Array, a: Array, b: Array):
@@ -166,6 +169,30 @@ def _gauss_cell(kernel: Callable[[Array, Array], Array], x, y, a, b, n: int = FA
         for tj, wj in zip(t, w, strict=True):
             total += wi * wj * kernel(x - a * ti, y - b * tj)
     return total * a * b
+
+
+def effective_far_plan(r: Array, size: Array, h: float, nu: float) -> tuple[Array, Array]:
+    """Where the effective-u_z cell integral should use Gauss quadrature, and with how many
+    points per axis: enough for (2R)^(−2n) < 1e-14, R = r/size (see EFFECTIVE_BUDGET)."""
+    with np.errstate(all="ignore"):  # overflow to inf is the right limit in each step here
+        ratio = r / size
+        magnify = 1.0 / np.maximum(1.5 * (h / np.maximum(r, 1e-300)) ** 2, 2.0 * nu)
+        far = (ratio >= EFFECTIVE_MIN_RATIO) & (
+            ratio * ratio * np.minimum(magnify, 1e300) > EFFECTIVE_BUDGET
+        )
+        order = np.ceil(7.0 / np.log10(2.0 * np.maximum(ratio, EFFECTIVE_MIN_RATIO)))
+    return far, np.clip(order, 3, 18).astype(int)
+
+
+def gauss_effective(x: Array, y: Array, a: Array, b: Array, h: float, nu: float, order: Array):
+    """2πE/(1+ν)·[u_z(0) − u_z(h)] of cells by Gauss quadrature, `order` points per axis."""
+    out = np.empty(np.broadcast_shapes(x.shape, order.shape))
+    for n in np.unique(order):
+        m = order == n
+        out[m] = _gauss_cell(
+            lambda dx, dy: effective_point_kernel(dx, dy, h, nu), x[m], y[m], a[m], b[m], int(n)
+        )
+    return out
 
 
 def _split(shape, x, y, a, b, dist, near_fn, far_fn, ratio: float = FAR_RATIO) -> Array:
@@ -288,21 +315,13 @@ def love_effective(
     k = 1.0 - 2.0 * nu
 
     if component == "z":
-
-        def near_z(xs, ys, as_, bs, m):
-            return c * corner_sum_effective(xs, ys, as_, bs, h, nu)
-
-        def far_z(xs, ys, as_, bs, m):
-            return c * _gauss_cell(
-                lambda dx, dy: effective_point_kernel(dx, dy, h, nu),
-                xs,
-                ys,
-                as_,
-                bs,
-                FAR_ORDER_EFFECTIVE,
-            )
-
-        return _split(x.shape, x, y, a, b, np.hypot(x, y), near_z, far_z, FAR_RATIO_EFFECTIVE)
+        out = np.empty(x.shape)
+        far, order = effective_far_plan(np.hypot(x, y), np.maximum(a, b), h, nu)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            near = ~far
+            out[near] = corner_sum_effective(x[near], y[near], a[near], b[near], h, nu)
+            out[far] = gauss_effective(x[far], y[far], a[far], b[far], h, nu, order[far])
+        return c * out
 
     zero, depth = np.zeros(1), np.full(1, h)
 
