@@ -110,7 +110,9 @@ class Harness:
         self.taxels: list[Any] = []
         self.diags: list[Any] = []
         deep = QoSProfile(depth=2000, reliability=ReliabilityPolicy.BEST_EFFORT)
-        self.listener.create_subscription(TaxelArray, "hexagon/taxels", self.taxels.append, deep)
+        self.sub = self.listener.create_subscription(
+            TaxelArray, "hexagon/taxels", self.taxels.append, deep
+        )
         self.listener.create_subscription(DiagnosticArray, "/diagnostics", self.diags.append, 50)
         self.executor = SingleThreadedExecutor(context=ctx)
         self.executor.add_node(self.driver)
@@ -118,8 +120,13 @@ class Harness:
         self._threads: list[threading.Thread] = []
 
     def wait_matched(self) -> None:
+        """Both ends matched (the listener side too: a previous test's listener may linger)."""
         pub = self.driver._pubs["hexagon"]
-        assert self.spin_until(lambda: pub.get_subscription_count() > 0, 10.0), "no match"
+
+        def matched() -> bool:
+            return pub.get_subscription_count() > 0 and self.sub.get_publisher_count() > 0
+
+        assert self.spin_until(matched, 10.0), "no match"
 
     def spin_until(self, done: Any, timeout_s: float) -> bool:
         from test.rosutil import spin_until
@@ -244,7 +251,8 @@ def test_replays_candump_log(harness_factory: Any, tmp_path: Path) -> None:
     assert h.driver.trigger_configure() == TransitionCallbackReturn.SUCCESS
     h.wait_matched()
     assert h.driver.trigger_activate() == TransitionCallbackReturn.SUCCESS
-    assert h.spin_until(lambda: len(h.taxels) >= len(truths), 10.0)
+    ok = h.spin_until(lambda: len(h.taxels) >= len(truths), 10.0)
+    assert ok, (len(h.taxels), h.diag() if h.diags else None)
     elapsed = time.monotonic() - t0
     assert elapsed >= 0.7 * len(truths) * PERIOD_S, "replay is paced by the log's timestamps"
     got = {stamp_index(m): bytes(m.raw) for m in h.taxels}
@@ -282,25 +290,42 @@ def module_slice(i: int) -> slice:
     return slice(12 * i, 12 * (i + 1))
 
 
-def check_every_reading_once(
-    msgs: list[Any], truths: dict[int, PeriodTruth], sent: set[tuple[int, int]]
-) -> None:
-    """Each sent (period, module) reading appears exactly once, not stale, with its raw values."""
+def fresh_readings(msgs: list[Any]) -> list[tuple[int, int]]:
+    """(period, module) of every module reading published as fresh (not STALE)."""
     from tactile_contact.msg import TaxelArray
 
-    seen: list[tuple[int, int]] = []
+    out = []
     for msg in msgs:
-        k = stamp_index(msg)
         status = np.frombuffer(bytes(msg.status), np.uint8)
-        raw = bytes(msg.raw)
         for i in range(N_MODULES):
             if not status[module_slice(i)][0] & TaxelArray.STATUS_STALE:
-                assert raw[module_slice(i)] == truths[k].values[module_slice(i)].tobytes()
-                seen.append((k, i))
+                out.append((stamp_index(msg), i))
+    return out
+
+
+def check_every_reading_once(
+    h: Harness, truths: dict[int, PeriodTruth], sent: set[tuple[int, int]]
+) -> None:
+    """Each sent (period, module) reading appears exactly once, not stale, with its raw values.
+
+    Waits up to 3 s for the last ones (a period split by max_wait ends in a later message).
+    """
+    h.spin_until(lambda: set(fresh_readings(h.taxels)) >= sent, 3.0)
+    seen = fresh_readings(h.taxels)
     assert len(seen) == len(set(seen)), "a reading was published twice as fresh"
     assert set(seen) == sent, (
         f"lost {sorted(sent - set(seen))[:5]}, extra {sorted(set(seen) - sent)[:5]}"
     )
+    by_stamp: dict[int, list[Any]] = {}
+    for msg in h.taxels:
+        by_stamp.setdefault(stamp_index(msg), []).append(msg)
+    for k, i in seen:
+        fresh = [
+            bytes(m.raw)[module_slice(i)]
+            for m in by_stamp[k]
+            if not m.status[12 * i] & 32  # STATUS_STALE
+        ]
+        assert fresh == [truths[k].values[module_slice(i)].tobytes()], (k, i)
 
 
 def test_garbage_is_counted_and_good_modules_keep_publishing(harness_factory: Any) -> None:
@@ -325,7 +350,6 @@ def test_garbage_is_counted_and_good_modules_keep_publishing(harness_factory: An
         return bool(h.diags) and h.diag()["frames"]["frames"] == str(passing + good_frames)
 
     assert h.spin_until(lambda: not h.sending() and counted(), 15.0), h.diag()["frames"]
-    h.spin_until(lambda: len(h.taxels) >= len(periods), 2.0)
     frames = h.diag()["frames"]
     assert frames["rejected"] == str(passing)
     reasons = ("truncated", "unknown_id", "bad_type", "bad_status", "not_data", "unexpected_module")
@@ -334,7 +358,7 @@ def test_garbage_is_counted_and_good_modules_keep_publishing(harness_factory: An
     assert frames["readings"] == str(N_MODULES * len(periods))
     assert frames["incomplete_periods"] == "0" and frames["orphan_b"] == "0"
     sent = {(round(p.t / PERIOD_S), i) for p in periods for i in range(N_MODULES)}
-    check_every_reading_once(h.taxels, truth_by_stamp(periods), sent)
+    check_every_reading_once(h, truth_by_stamp(periods), sent)
 
 
 def test_silent_module_is_flagged_stale_and_recovers(harness_factory: Any) -> None:
@@ -358,15 +382,13 @@ def test_silent_module_is_flagged_stale_and_recovers(harness_factory: Any) -> No
     assert h.spin_until(lambda: bool(h.diags) and module3()["stale"] == "True", 5.0)
     assert module3()["_level"] == "2"  # ERROR: silent
     assert h.spin_until(lambda: not h.sending(), 10.0)
-    h.spin_until(lambda: len(h.taxels) >= len(periods), 2.0)
-    check_every_reading_once(h.taxels, truth_by_stamp(periods), sent)
+    check_every_reading_once(h, truth_by_stamp(periods), sent)
     # while silent, its channels are flagged STALE and the others are fresh
     during = [m for m in h.taxels if 40 <= stamp_index(m) < 65]
-    assert len(during) == 25
-    for m in during:
+    assert {stamp_index(m) for m in during} == set(range(40, 65))
+    for m in during:  # (the other modules' readings are checked fresh above)
         st = np.frombuffer(bytes(m.status), np.uint8)
         assert np.all(st[module_slice(3)] & TaxelArray.STATUS_STALE)
-        assert not np.any(np.delete(st, np.arange(36, 48)) & TaxelArray.STATUS_STALE)
     assert list(during[0].taxel_ids[36:38]) == [silent_id, silent_id + 1]
     h.spin_for(0.3)
     assert module3()["missed_periods"] == str(len(quiet))
@@ -415,7 +437,7 @@ def test_bus_errors_are_counted_and_the_bus_reconnects(
     h.send(p.messages for p in periods)
     assert h.spin_until(lambda: not h.sending() and len(h.taxels) >= len(periods), 10.0)
     sent = {(round(p.t / PERIOD_S), i) for p in periods for i in range(N_MODULES)}
-    check_every_reading_once(h.taxels, truth_by_stamp(periods), sent)
+    check_every_reading_once(h, truth_by_stamp(periods), sent)
     h.spin_for(0.25)
     bus = h.diag()["CAN bus"]
     assert int(bus["bus_errors"]) > 10 and bus["reconnects"] == "0"

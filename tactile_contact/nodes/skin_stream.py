@@ -33,6 +33,8 @@ from tactile_contact.modules import CHANNELS_PER_MODULE, taxel_id
 SKIN_MASK = 0x700
 #: Readings more than this fraction of a period apart belong to different periods.
 COHERENCE = 0.75
+#: Longest time [s] between recounts of a patch's live modules.
+LIVE_RECHECK_S = 0.005
 
 
 class ReplayBus:
@@ -194,6 +196,9 @@ class _PatchState:
     oor: NDArray[np.bool_]
     err: NDArray[np.bool_]
     seen: NDArray[np.bool_]
+    n_fresh: int = 0
+    n_live: int = 0
+    live_checked: float = -math.inf  # monotonic [s]
     first_pending: float = math.inf  # monotonic time of the first pending reading [s]
     oldest_pending_stamp: float = math.inf  # receive time of the oldest pending reading [s]
     newest_stamp: float = -math.inf
@@ -330,16 +335,23 @@ class SkinStream:
                 m.missed_periods += max(round(gap / self.period_s) - 1, 0)
         sl = slice(CHANNELS_PER_MODULE * i, CHANNELS_PER_MODULE * (i + 1))
         st.raw[sl] = reading.values
-        st.oor[sl] = reading.out_of_range
+        st.oor[sl] = reading.out_of_range if reading.oor_mask else False
         st.err[sl] = bool(reading.error_flags)
         st.seen[sl] = True
+        if self._start is None:
+            self._start = now
+        was_live = self._live(m, now)
         m.fresh, m.last_seen, m.last_stamp = True, now, reading.timestamp
+        st.n_fresh += 1
         st.first_pending = min(st.first_pending, now)
         st.oldest_pending_stamp = min(st.oldest_pending_stamp, reading.timestamp)
         st.newest_stamp = max(st.newest_stamp, reading.timestamp)
-        if self._start is None:
-            self._start = now
-        if all(mm.fresh for mm in st.modules if self._live(mm, now)):
+        # Fresh modules are always live, so "every live module is fresh" is a count test. The
+        # live count is refreshed when a module comes back and otherwise every LIVE_RECHECK_S.
+        if not was_live or now - st.live_checked >= LIVE_RECHECK_S:
+            st.n_live = sum(self._live(mm, now) for mm in st.modules)
+            st.live_checked = now
+        if st.n_fresh >= st.n_live:
             out.append(self._emit(st))
         return out
 
@@ -360,9 +372,9 @@ class SkinStream:
         )
         status = res.status.copy()
         status[~st.seen] &= np.uint8(~bl.STATUS_SATURATED & 0xFF)  # never heard: no value at all
-        st.last_bad = st.tracker.bad_taxels()
         for m in st.modules:
             m.fresh = False
+        st.n_fresh = 0
         st.first_pending = math.inf
         st.oldest_pending_stamp = math.inf
         st.published += 1
@@ -427,6 +439,7 @@ class SkinStream:
         return out
 
     def _patch_status(self, st: _PatchState) -> DiagStatus:
+        st.last_bad = st.tracker.bad_taxels()
         bad = {st.taxel_ids[i]: why for i, why in st.last_bad.items()}
         kinds: dict[str, list[str]] = {"stuck": [], "dead": [], "saturated": [], "out_of_range": []}
         for tid, reasons in sorted(bad.items()):
