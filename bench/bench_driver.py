@@ -210,14 +210,14 @@ def main() -> None:
         f"   = {off['stream_us'] * frames_per_s / 1e4:.1f} % of one core at this rate"
     )
     print("\nlive on a virtual bus      process CPU   rx-thread CPU   output rate")
-    print(
-        f"  python-can recv alone      {100 * alone['proc']:6.1f} %     {100 * alone['thread']:6.1f} %"
-        f"      {alone['rate']:7.0f} frames/s"
-    )
-    print(
-        f"  skin_driver node           {100 * node['proc']:6.1f} %     {100 * node['thread']:6.1f} %"
-        f"      {node['rate']:7.1f} msgs/s (expect {RATE_HZ:.0f})"
-    )
+    for label, r, unit in (
+        ("python-can recv alone", alone, "frames/s"),
+        ("skin_driver node     ", node, f"msgs/s (expect {RATE_HZ:.0f})"),
+    ):
+        print(
+            f"  {label}      {100 * r['proc']:6.1f} %     {100 * r['thread']:6.1f} %"
+            f"      {r['rate']:7.1f} {unit}"
+        )
     print(
         f"  ratio node / python-can    {node['proc'] / alone['proc']:6.2f} x    "
         f"{node['thread'] / max(alone['thread'], 1e-9):6.2f} x"
