@@ -8,11 +8,11 @@ the skin. Contact is detected per taxel on the *magnitude* of the deviation from
 hysteresis in level (``contact_on_counts`` / ``contact_off_counts``) and time (``release_s``);
 tracking is frozen on the taxels in contact, on every taxel within ``freeze_radius_m`` of one,
 and, with ``module_freeze``, on the whole module. A held contact therefore keeps its ΔC
-indefinitely (or for ``max_freeze_s`` if set), while drift without contact is followed. Drift
-that accumulated unseen under a long contact is absorbed when the contact ends: a taxel is
-released when its deviation stays below ``release_fraction`` of its contact peak (or below
-``contact_off_counts``) for ``release_s``, and a region that thaws restarts its baselines from
-the median of the last ``tare_window`` readings.
+for ``max_freeze_s`` (5 min by default), while drift without contact is followed. Drift that
+accumulated unseen under a long contact is absorbed after the contact ends: a taxel is released
+when its deviation stays below ``release_fraction`` of its contact peak (or below
+``contact_off_counts``) for ``release_s``, and only contacts with a fast onset freeze anything,
+so the residual is then tracked away with the drift time constant.
 
 Output is ΔC [F] (positive = compression) through :mod:`tactile_contact.sensor`, and per-taxel
 status flags whose values match ``tactile_contact/msg/TaxelArray`` (plus STATUS_UNCALIBRATED).
@@ -84,8 +84,10 @@ class BaselineConfig:
         freeze_radius_m: taxels within this distance of a contact are frozen too [m] (needs
             positions; 0 freezes only the taxels in contact).
         module_freeze: freeze the whole module when one of its taxels is in contact.
-        max_freeze_s: resume tracking after this long frozen [s] (None: never; a long-held
-            object then stays reported until tare).
+        max_freeze_s: resume tracking after this long frozen [s] (None: never). The escape
+            from the cases no rule can tell from a held object (a light load absorbed by
+            tracking and then lifted reads as a lasting negative contact); a longer hold then
+            fades with the drift time constant.
         stuck_timeout_s: a valid taxel whose value has not changed for this long is stuck [s]
             (None: never).
         dead_timeout_s: a taxel reading 0 for this long is dead [s].
@@ -101,7 +103,7 @@ class BaselineConfig:
     onset_time_constant_s: float = 2.0
     freeze_radius_m: float = 0.012
     module_freeze: bool = True
-    max_freeze_s: float | None = None
+    max_freeze_s: float | None = 300.0
     stuck_timeout_s: float | None = 60.0
     dead_timeout_s: float = 5.0
     tare_window: int = 10
@@ -262,7 +264,6 @@ class BaselineTracker:
         self._peak = np.zeros(n)
         self._quiet_since = np.full(n, np.inf)
         self._frozen_since = np.full(n, np.inf)
-        self._was_frozen = np.zeros(n, dtype=bool)
 
     def tare(self) -> bool:
         """Make the current readings the baselines (mean of the last ``tare_window`` readings).
@@ -390,13 +391,6 @@ class BaselineTracker:
         track = usable & cal & ~hold & ~just
         alpha = -np.expm1(-dt / cfg.drift_time_constant_s)
         self.baseline[track] += alpha[track] * (v[track] - self.baseline[track])
-        # Drift went unobserved while frozen: where a contact has just ended, restart from the
-        # recent readings (all taken after the release delay) rather than from the old value.
-        thawed = self._was_frozen & ~frozen & usable & cal
-        if np.any(thawed):
-            recent = np.median(np.stack(self._recent), axis=0)
-            self.baseline[thawed] = recent[thawed]
-        self._was_frozen = frozen
 
         # Fault timers count time of fresh readings only, so a silent module is stale, not stuck.
         same = fr & (v == self._last_value)
