@@ -452,7 +452,7 @@ class SkinDriver(LifecycleNode):
 
 
 def main(args: list[str] | None = None) -> None:
-    """Run ``skin_driver`` until Ctrl-C."""
+    """Run ``skin_driver`` until Ctrl-C; exit 1 with a message if it cannot start."""
     rclpy.init(args=args)
     node = None
     try:
@@ -462,6 +462,9 @@ def main(args: list[str] | None = None) -> None:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception as exc:  # e.g. a parameter out of range: say so, exit 1
+        print(f"ERROR: skin_driver: {type(exc).__name__}: {exc}")
+        raise SystemExit(1) from None
     finally:
         if node is not None:
             node.destroy_node()
