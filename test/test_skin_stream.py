@@ -1,0 +1,197 @@
+"""The ROS-free data path of skin_driver: patch gathering, staleness, health, replay, errors.
+
+Times are driven by hand (``now`` is the monotonic clock the stream waits on, frame
+timestamps the receive times), so every rule is checked deterministically.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from tactile_contact import baseline as bl
+from tactile_contact import codec
+from tactile_contact.layout import load_layout
+from tactile_contact.nodes.skin_stream import BusErrorPolicy, ReplayBus, SkinStream
+from tactile_contact.sensor import value_count_farad
+
+LAYOUT = Path(__file__).resolve().parents[1] / "config" / "hexagon_patch.yaml"
+P = 0.02  # period [s]
+M = 6
+
+
+def make_stream(**kw: object) -> SkinStream:
+    args = {
+        "period_s": P,
+        "max_wait_s": 0.02,
+        "module_timeout_s": 0.1,
+        "baseline": bl.BaselineConfig(calibration_samples=2),
+    }
+    args.update(kw)
+    return SkinStream(load_layout(LAYOUT).patches, **args)  # type: ignore[arg-type]
+
+
+def frames(k: int, tri: int, value: int = 240, t0: float = 100.0) -> list[can.Message]:
+    """Frames A and B of triangle ``tri`` in period k, all channels at ``value``."""
+    return codec.reading_messages(0, tri, [value] * 12, timestamp=t0 + k * P + tri * 1e-4)
+
+
+def feed_period(s: SkinStream, k: int, tris: range | list[int] = range(M), value: int = 240):
+    out = []
+    for tri in tris:
+        for m in frames(k, tri, value):
+            out += s.feed(m, now=k * P + tri * 1e-4)
+    return out
+
+
+def fresh_modules(frame: object) -> list[int]:
+    st = np.frombuffer(frame.status, np.uint8)  # type: ignore[attr-defined]
+    return [i for i in range(M) if not st[12 * i] & bl.STATUS_STALE]
+
+
+def test_one_message_per_period_with_delta_c_after_calibration() -> None:
+    s = make_stream()
+    out = [f for k in range(3) for f in feed_period(s, k)]
+    assert len(out) == 3 and all(fresh_modules(f) == list(range(M)) for f in out)
+    (f,) = feed_period(s, 3, value=236)
+    assert f.patch == "hexagon" and f.frame_id == "skin_hexagon"
+    assert f.stamp == pytest.approx(100.0 + 3 * P + 5e-4)  # completing frame of the last module
+    se = load_layout(LAYOUT).patch("hexagon").sensor
+    q = float(value_count_farad(se.farad_per_count, se.shift))
+    np.testing.assert_allclose(f.delta_c, 4 * q, rtol=1e-6)
+    assert f.raw == bytes([236] * 12 * M)
+    assert f.taxel_ids[:13] == [*range(12), 0x10]
+
+
+def test_max_wait_publishes_with_stale_modules_and_loses_nothing() -> None:
+    s = make_stream()
+    feed_period(s, 0)
+    assert feed_period(s, 1, tris=[0, 1, 2]) == []
+    assert s.poll(now=1 * P + 0.019) == []  # max wait not reached yet
+    (split,) = s.poll(now=1 * P + 0.021)
+    assert fresh_modules(split) == [0, 1, 2]
+    st = np.frombuffer(split.status, np.uint8)
+    assert np.all(st[36:] & bl.STATUS_STALE)
+    rest = feed_period(s, 1, tris=[3, 4, 5])
+    assert rest == []  # 3..5 now pending; 0..2 of period 2 will publish them
+    (second,) = s.feed(frames(2, 0)[0], now=2 * P) + s.feed(frames(2, 0)[1], now=2 * P)
+    assert fresh_modules(second) == [3, 4, 5]
+
+
+def test_second_reading_of_a_module_publishes_the_pending_one_first() -> None:
+    s = make_stream(max_wait_s=10.0)
+    feed_period(s, 0)
+    feed_period(s, 1, tris=[0, 1])
+    # module 0 again, stamped only 1 ms later: same-module repeat forces the publication
+    msgs = codec.reading_messages(0, 0, [200] * 12, timestamp=100.0 + P + 1e-3)
+    out = s.feed(msgs[0], now=0.03) + s.feed(msgs[1], now=0.03)
+    assert len(out) == 1 and fresh_modules(out[0]) == [0, 1]
+    assert out[0].raw[:12] == bytes([240] * 12)
+
+
+def test_a_reading_of_a_later_period_does_not_join_the_pending_ones() -> None:
+    s = make_stream(max_wait_s=10.0)
+    feed_period(s, 0)
+    feed_period(s, 1, tris=[4, 5])
+    out = feed_period(s, 2, tris=[0])  # 0.75 period after the pending readings or more
+    assert len(out) == 1 and fresh_modules(out[0]) == [4, 5]
+
+
+def test_silent_module_is_not_waited_for_after_the_timeout() -> None:
+    s = make_stream(max_wait_s=10.0)
+    for k in range(2):
+        feed_period(s, k)
+    quiet = [0, 1, 2, 4, 5]
+    k = 2
+    # within the timeout the patch waits for module 3, then the repeat rule publishes
+    while k * P < 1 * P + 0.1:
+        feed_period(s, k, tris=quiet)
+        k += 1
+    feed_period(s, k, tris=quiet)  # publishes what waited for module 3
+    out = feed_period(s, k + 1, tris=quiet)
+    assert len(out) == 1 and fresh_modules(out[0]) == quiet  # published at once, 3 stale
+    diag = {d.name: d for d in s.diagnostics(now=(k + 1) * P)}
+    m3 = diag["patch hexagon module board 0 triangle 3"]
+    assert m3.level == 2 and m3.values["stale"] is True
+    # it comes back: waited for again, and its gap is counted as missed periods
+    back = feed_period(s, k + 2)
+    assert len(back) == 1 and fresh_modules(back[0]) == list(range(M))
+    m3 = {d.name: d for d in s.diagnostics(now=(k + 2) * P)}[m3.name]
+    assert m3.level == 0 and m3.values["missed_periods"] == k + 2 - 1 - 1
+
+
+def test_never_heard_modules_are_stale_not_saturated() -> None:
+    s = make_stream(module_timeout_s=0.01)
+    feed_period(s, 0, tris=[0])
+    (f,) = s.poll(now=1.0)
+    st = np.frombuffer(f.status, np.uint8)
+    assert np.all(st[12:] & bl.STATUS_STALE) and not np.any(st[12:] & bl.STATUS_SATURATED)
+    names = {d.name: d for d in s.diagnostics(now=1.0)}
+    assert names["patch hexagon"].values["never_heard_modules"] == "0/1 0/2 0/3 0/4 0/5"
+
+
+def test_bad_frames_are_counted_per_reason() -> None:
+    s = make_stream()
+    bad = [
+        can.Message(arbitration_id=0x400, data=b"\x40\x01", is_extended_id=False),  # truncated
+        can.Message(arbitration_id=0x401, data=bytes(8), is_extended_id=False),  # bad type
+        can.Message(arbitration_id=0x4F0, data=b"\x40" + bytes(7), is_extended_id=False),
+        can.Message(arbitration_id=0x300, data=b"\x40" + bytes(7), is_extended_id=False),
+        can.Message(arbitration_id=0x400, is_remote_frame=True, is_extended_id=False),
+    ]
+    for m in bad:
+        assert s.feed(m, now=0.0) == []
+    assert s.last_error is not None
+    values = s.diagnostics(now=0.0)[0].values
+    assert values["rejected"] == 5
+    for reason in ("truncated", "bad_type", "unexpected_module", "unknown_id", "not_data"):
+        assert values[f"rejected_{reason}"] == 1, reason
+
+
+def test_tare_and_board_ranges() -> None:
+    s = make_stream()
+    assert s.tare() == ([], ["hexagon"])
+    feed_period(s, 0)
+    assert s.tare() == (["hexagon"], [])
+    assert s.board_ranges() == {0: (0, 5, 2, 240)}
+    assert s.can_filters() == [{"can_id": 0x400, "can_mask": 0x700, "extended": False}]
+
+
+def test_replay_bus_filters_paces_and_finishes(tmp_path: Path) -> None:
+    log = tmp_path / "x.log"
+    with can.Logger(str(log)) as w:
+        for k in range(5):
+            for m in frames(k, 0, t0=0.0):
+                w.on_message_received(m)
+            w.on_message_received(
+                can.Message(arbitration_id=0x123, data=b"", is_extended_id=False, timestamp=k * P)
+            )
+    bus = ReplayBus(str(log), can_filters=make_stream().can_filters())
+    import time
+
+    t0 = time.monotonic()
+    got = [bus.recv(0.01) for _ in range(10)]
+    assert time.monotonic() - t0 >= 3 * P  # paced by the recorded timestamps
+    assert all(m is not None and m.arbitration_id == 0x400 for m in got)
+    assert bus.recv(0.01) is None and bus.finished
+    bus.shutdown()
+
+
+def test_bus_error_policy_asks_for_a_reconnect_after_consecutive_errors() -> None:
+    p = BusErrorPolicy(reconnect_after=3)
+    assert [p.error(OSError("down")) for _ in range(2)] == [False, False]
+    p.ok()
+    assert [p.error(can.CanOperationError("x")) for _ in range(3)] == [False, False, True]
+    v = p.values()
+    assert v["bus_errors"] == 5 and v["bus_errors_in_window"] == 5
+    assert p.values()["bus_errors_in_window"] == 0
+    assert "CanOperationError" in v["last_bus_error"]
+
+
+@pytest.mark.parametrize("bad", [{"max_wait_s": 0.0}, {"period_s": float("nan")}])
+def test_invalid_arguments_are_rejected(bad: dict) -> None:
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        make_stream(**bad)
