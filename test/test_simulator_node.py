@@ -86,3 +86,44 @@ def test_bad_scenario_is_rejected(ros_context: Any) -> None:
 
     with pytest.raises(InvalidParameterValueException, match="scenario"):
         make_node(ros_context, "sim-node-2", scenario="dance")
+
+
+def test_driver_reads_the_simulator_and_stamps_match_the_truth(ros_context: Any) -> None:
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from tactile_contact.msg import ContactState, TaxelArray
+    from tactile_contact.nodes.skin_driver import SkinDriver
+    from test.rosutil import spin_until
+
+    listener = Node("listener", context=ros_context)
+    taxels: list[Any] = []
+    truths: list[Any] = []
+    qos = QoSProfile(depth=500, reliability=ReliabilityPolicy.BEST_EFFORT)
+    listener.create_subscription(TaxelArray, "hexagon/taxels", taxels.append, qos)
+    listener.create_subscription(ContactState, "hexagon/contact_truth", truths.append, qos)
+    params = {"layout": str(LAYOUT), "interface": "virtual", "channel": "sim-node-3"}
+    driver = SkinDriver(
+        context=ros_context,
+        parameter_overrides=[Parameter(k, value=v) for k, v in {**params, "period_ms": 20}.items()],
+    )
+    sim = make_node(ros_context, "sim-node-3", scenario="sweep", period_ms=20, cycle_s=2.0)
+    executor = SingleThreadedExecutor(context=ros_context)
+    for n in (listener, driver, sim):
+        executor.add_node(n)
+    try:
+        assert spin_until(executor, lambda: len(taxels) >= 40 and len(truths) >= 40, 5.0)
+    finally:
+        executor.shutdown()
+        for n in (sim, driver, listener):
+            n.destroy_node()
+
+    def key(m: Any) -> int:
+        return m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+
+    truth_stamps = {key(t) for t in truths}
+    matched = [m for m in taxels if key(m) in truth_stamps]
+    assert len(matched) >= 0.9 * min(len(taxels), len(truths)), "one taxel message per period"
+    assert all(m.header.frame_id == t.header.frame_id for m in taxels[:1] for t in truths[:1])
