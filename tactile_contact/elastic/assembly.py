@@ -28,6 +28,7 @@ from tactile_contact.elastic.love import (
     _corner_uz_effective,
     _edge_correction,
     effective_far_plan,
+    effective_far_radius,
     gauss_effective,
     love_effective,
     love_uz,
@@ -111,6 +112,8 @@ def love_matrix(
     cx, cy = ux[ukeys // uy.size], uy[ukeys % uy.size]
     scale = (1.0 + nu) / (2.0 * np.pi * e)
     size = np.maximum(a, b)
+    # a slightly smaller radius than the plan's, so that rounding never misses a far pair
+    far_r2 = (effective_far_radius(size, h, nu) * (1.0 - 1e-9)) ** 2
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         for rows in _chunks(p.shape[0], max(n, ukeys.size), chunk_elements):
             px, py = p[rows, 0:1], p[rows, 1:2]
@@ -133,11 +136,15 @@ def love_matrix(
                     h,
                     nu,
                 )
-            far, order = effective_far_plan(np.hypot(dx, dy), size, h, nu)
-            kk, nn = np.nonzero(far)
+            r2 = dx * dx
+            r2 += dy * dy
+            kk, nn = np.nonzero(r2 >= far_r2)
             if kk.size:
+                r = np.sqrt(r2[kk, nn])
+                far, order = effective_far_plan(r, size[nn], h, nu)
+                kk, nn, r = kk[far], nn[far], r[far]
                 blk[kk, nn] = gauss_effective(
-                    dx[kk, nn], dy[kk, nn], a[nn], b[nn], h, nu, order[kk, nn]
+                    dx[kk, nn], dy[kk, nn], a[nn], b[nn], h, nu, order[far]
                 )
             out[rows] = scale * blk
     return out

@@ -90,14 +90,29 @@ def _corner_uz_effective(xc: Array, yc: Array, h: float, nu: float) -> Array:
     added back exactly by :func:`_edge_correction`.
     """
     ax, ay = np.abs(xc), np.abs(yc)
-    r0 = np.sqrt(xc * xc + yc * yc)
-    r = np.sqrt(r0 * r0 + h * h)
-    s = h * h / (r0 + r)
-    # P_Y − sgn(X)·G(Y) = sgn(X)·Y·ln((|X|+R0)/(|X|+R)) = sgn(X)·Y·log1p(−s/(|X|+R)); the
-    # ratio is < 1 except at X = Y = 0, where the clamp keeps 0·log finite.
-    top = 1.0 - np.finfo(float).epsneg
-    p = np.sign(xc) * yc * np.log1p(-np.minimum(s / (ax + r), top))
-    p += np.sign(yc) * xc * np.log1p(-np.minimum(s / (ay + r), top))
+    r0 = xc * xc
+    r0 += yc * yc
+    r = r0 + h * h
+    np.sqrt(r0, out=r0)
+    np.sqrt(r, out=r)
+    s = r0 + r
+    np.divide(h * h, s, out=s)
+    # P_Y − sgn(X)·G(Y) = sgn(X)·Y·ln((|X|+R0)/(|X|+R)) = sgn(X)·Y·log1p(−s/(|X|+R)). The
+    # factor 1 + 4ε on R keeps the ratio below 1 where X = Y = 0 (so 0·log stays finite) and
+    # changes it by one rounding at most elsewhere. Written in place: this is the hot loop.
+    rt = r * (1.0 + 4.0 * np.finfo(float).eps)
+
+    def tail(along: Array, other: Array, a_other: Array) -> Array:
+        t = a_other + rt
+        np.divide(s, t, out=t)
+        np.negative(t, out=t)
+        np.log1p(t, out=t)
+        t *= along
+        t *= np.sign(other)
+        return t
+
+    p = tail(yc, xc, ax)
+    p += tail(xc, yc, ay)
     if nu == 0.5:
         return p
     # atan(XY/(hR)) − sgnX·atan(Y/h) − sgnY·atan(X/h) + sgnX·sgnY·π/2, larger leg first
@@ -112,12 +127,7 @@ def _edge_g_diff(t1: Array, t2: Array, h: float, nu: float) -> Array:
     """G(t1) − G(t2), G(t) = 2(1−ν)·t·asinh(h²/(2|t|q_t)) + (1−2ν)·h·atan(t/h)."""
 
     def g(t):
-        at = np.abs(t)
-        return np.where(
-            at > 0.0,
-            t * np.arcsinh(h * h / (2.0 * np.where(at > 0, at, 1.0) * np.sqrt(t * t + h * h))),
-            0.0,
-        )
+        return t * np.arcsinh(_ratio(np.full_like(t, h * h), 2.0 * np.abs(t) * np.hypot(t, h)))
 
     out = 2.0 * (1.0 - nu) * (g(t1) - g(t2))
     if nu != 0.5:
@@ -182,6 +192,17 @@ def effective_far_plan(r: Array, size: Array, h: float, nu: float) -> tuple[Arra
         )
         order = np.ceil(7.0 / np.log10(2.0 * np.maximum(ratio, EFFECTIVE_MIN_RATIO)))
     return far, np.clip(order, 3, 18).astype(int)
+
+
+def effective_far_radius(size: Array, h: float, nu: float) -> Array:
+    """The distance [m] from which :func:`effective_far_plan` chooses quadrature, per cell
+    half-size `size` [m]: the smallest r with R ≥ 2.5 and R²·M > EFFECTIVE_BUDGET."""
+    size = np.asarray(size, dtype=float)
+    r = (1.5 * EFFECTIVE_BUDGET * size * size * h * h) ** 0.25  # M = r²/(1.5h²) branch
+    if nu > 0.0:
+        r_flat = size * np.sqrt(2.0 * nu * EFFECTIVE_BUDGET)  # M = 1/(2ν) branch
+        r = np.where(r_flat * r_flat >= 0.75 * h * h / nu, r_flat, r)
+    return np.maximum(r, EFFECTIVE_MIN_RATIO * size) * (1.0 + 1e-12)
 
 
 def gauss_effective(x: Array, y: Array, a: Array, b: Array, h: float, nu: float, order: Array):
