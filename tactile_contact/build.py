@@ -1,0 +1,261 @@
+"""Offline matrix tool: patch layout YAML → one matrix bundle per patch.
+
+Usage::
+
+    tactile-contact-build LAYOUT.yaml -o DIR [--force] [--jobs N] [--patch NAME ...]
+    python -m tactile_contact.build LAYOUT.yaml -o DIR
+
+Each patch's bundle goes to ``DIR/<patch name>``. A bundle whose layout and parameter hashes
+match the layout is skipped unless ``--force``. Patches build in parallel processes. Errors are
+printed as ``ERROR: ...`` and the exit status is 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from tactile_contact import __version__
+from tactile_contact.bundle import BundleError, bundle_status, save_bundle
+from tactile_contact.grids import Grid, disc_quadrature, skin_grid
+from tactile_contact.layout import LayoutError, PatchLayout, load_layout
+
+#: Disc quadrature of the taxel average (3 radii × 8 angles): changes δ by < 1e-3 relative
+#: against 4 × 12 points at 2 mm electrodes and 2 mm cells.
+TAXEL_QUADRATURE = (3, 8)
+
+
+def grids_for(patch: PatchLayout) -> tuple[Grid, Grid]:
+    """(traction grid, deflection grid) of a patch, masked to its skin."""
+    g = patch.grid
+    xy = patch.taxel_xy()
+    outlines = patch.module_outlines()
+    tg = skin_grid(xy, g.traction_cell, g.margin, g.mask, g.mask_distance, outlines)
+    dg = skin_grid(xy, g.deflection_cell, g.margin, g.mask, g.mask_distance, outlines)
+    return tg, dg
+
+
+def laplacian(grid: Grid) -> NDArray[np.float64]:
+    """(N, N) graph Laplacian of the masked cells (4-neighbours), the smoothness regulariser."""
+    idx = -np.ones(grid.shape, dtype=int)
+    idx[grid.mask] = np.arange(grid.n_cells)
+    lap = np.zeros((grid.n_cells, grid.n_cells))
+    for di, dj in ((0, 1), (1, 0)):
+        a = idx[: grid.shape[0] - di, : grid.shape[1] - dj]
+        b = idx[di:, dj:]
+        ok = (a >= 0) & (b >= 0)
+        i, j = a[ok], b[ok]
+        np.add.at(lap, (i, i), 1.0)
+        np.add.at(lap, (j, j), 1.0)
+        np.add.at(lap, (i, j), -1.0)
+        np.add.at(lap, (j, i), -1.0)
+    return lap
+
+
+def forward_matrix(patch: PatchLayout, points: NDArray, grid: Grid) -> NDArray[np.float64]:
+    """(len(points), N) effective deflection per unit cell pressure [m/Pa] for the patch model."""
+    from tactile_contact.elastic import boussinesq_matrix, love_matrix
+
+    e = patch.elastomer
+    if patch.model.kind == "love":
+        return love_matrix(
+            points, grid.centers(), grid.half_sizes(), e.thickness, e.young, e.poisson
+        )
+    per_force = boussinesq_matrix(
+        points, grid.centers(), grid.cell_area, e.thickness, e.young, e.poisson, patch.model.psi
+    )
+    return per_force * grid.cell_area  # a cell's force is p·A
+
+
+def taxel_matrix(patch: PatchLayout, grid: Grid) -> NDArray[np.float64]:
+    """(K, N) forward matrix C [m/Pa] at the taxels (mean over the electrode disc if asked)."""
+    xy = patch.taxel_xy()
+    if not patch.model.taxel_average:
+        return forward_matrix(patch, xy, grid)
+    q, w = disc_quadrature(patch.sensor.taxel_radius, *TAXEL_QUADRATURE)
+    pts = (xy[:, None, :] + q[None, :, :]).reshape(-1, 2)
+    c = forward_matrix(patch, pts, grid).reshape(len(xy), len(w), -1)
+    return np.einsum("kqn,q->kn", c, w)
+
+
+def free_inverse(patch: PatchLayout, c: NDArray, reg: NDArray | None) -> tuple[NDArray, float]:
+    """(N, K) free inverse operator of the patch's method and the absolute λ used."""
+    from tactile_contact.reconstruction import regularised_inverse
+
+    s = patch.solver
+    lam = s.tikhonov * float(np.linalg.norm(c, 2))
+    rank = min(s.tsvd_rank or min(c.shape), *c.shape)
+    return regularised_inverse(c, s.method, lam, reg, s.rcond, rank), lam
+
+
+def build_patch(patch: PatchLayout) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
+    """Compute a patch's bundle contents: (manifest, arrays). Pure: writes nothing."""
+    t0 = time.perf_counter()
+    tg, dg = grids_for(patch)
+    c = taxel_matrix(patch, tg)
+    reg = laplacian(tg) if patch.solver.regulariser == "laplacian" else None
+    inverse, lam = free_inverse(patch, c, reg)
+    from tactile_contact.elastic import love_matrix
+
+    e = patch.elastomer
+    g_out = love_matrix(
+        dg.centers(), tg.centers(), tg.half_sizes(), e.thickness, e.young, e.poisson
+    )
+    arrays: dict[str, NDArray[Any]] = {
+        "forward": c,
+        "inverse": inverse.astype(np.float32),
+        "deflection_operator": g_out.astype(np.float32),
+        "taxel_xy": patch.taxel_xy(),
+        "taxel_ids": patch.taxel_ids(),
+        "traction_grid_mask": tg.mask,
+        "deflection_grid_mask": dg.mask,
+    }
+    if reg is not None:
+        arrays["regulariser"] = reg
+    s, sen = patch.solver, patch.sensor
+    params = {
+        "thickness": e.thickness,
+        "young": e.young,
+        "poisson": e.poisson,
+        "epsilon_r": sen.epsilon_r,
+        "taxel_radius": sen.taxel_radius,
+        "area": sen.area,
+        "farad_per_count": sen.farad_per_count,
+        "shift": sen.shift,
+        "no_load": sen.no_load,
+        "model": patch.model.kind,
+        "psi": patch.model.psi,
+        "taxel_average": patch.model.taxel_average,
+        "traction_cell": tg.cell_size,
+        "deflection_cell": dg.cell_size,
+        "method": s.method,
+        "regulariser": s.regulariser,
+        "tikhonov_relative": s.tikhonov,
+        "tikhonov": lam,
+        "rcond": s.rcond,
+        "tsvd_rank": s.tsvd_rank,
+        "noise": s.noise,
+        "nnls_method": s.nnls_method,
+        "support_radius": s.support_radius,
+        "seed_fraction": s.seed_fraction,
+        "rel_threshold": s.area_rel_threshold,
+        "min_pressure": s.area_min_pressure,
+    }
+    manifest = {
+        "patch": patch.name,
+        "frame_id": patch.frame_id,
+        "layout_hash": patch.layout_hash(),
+        "parameter_hash": patch.parameter_hash(),
+        "library_version": __version__,
+        "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "build_seconds": round(time.perf_counter() - t0, 3),
+        "params": params,
+        "layout": patch.to_dict(),
+        "traction_grid": tg.as_dict(),
+        "deflection_grid": dg.as_dict(),
+    }
+    return manifest, arrays
+
+
+def _build_one(patch: PatchLayout, dest: str) -> tuple[str, float]:
+    t0 = time.perf_counter()
+    manifest, arrays = build_patch(patch)
+    save_bundle(dest, manifest, arrays)
+    return patch.name, time.perf_counter() - t0
+
+
+def build_layout(
+    layout: str | Path,
+    out_dir: str | Path,
+    *,
+    force: bool = False,
+    jobs: int | None = None,
+    patches: list[str] | None = None,
+    progress: bool = False,
+) -> dict[str, str]:
+    """Build the bundles of a layout file under ``out_dir``; returns patch → status
+    (``built`` or ``up-to-date``). Raises LayoutError / BundleError / ValueError."""
+    lay = load_layout(layout)
+    chosen = [lay.patch(n) for n in patches] if patches else list(lay.patches)
+    out = Path(out_dir)
+    status: dict[str, str] = {}
+    todo = []
+    for p in chosen:
+        st = bundle_status(out / p.name, p)
+        if st == "up-to-date" and not force:
+            status[p.name] = "up-to-date"
+        else:
+            todo.append(p)
+    if not todo:
+        return status
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(todo), desc="building bundles", unit="patch", file=sys.stderr)
+    workers = max(1, min(jobs or 2, len(todo)))
+    try:
+        if workers == 1:
+            for p in todo:
+                _build_one(p, str(out / p.name))
+                status[p.name] = "built"
+                if bar is not None:
+                    bar.update(1)
+        else:
+            with cf.ProcessPoolExecutor(max_workers=workers) as pool:
+                futs = {pool.submit(_build_one, p, str(out / p.name)): p for p in todo}
+                for fut in cf.as_completed(futs):
+                    name, _ = fut.result()
+                    status[name] = "built"
+                    if bar is not None:
+                        bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+    return status
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="tactile-contact-build",
+        description="Build the matrix bundles (one folder per patch) of a patch layout YAML.",
+    )
+    ap.add_argument("layout", help="patch layout YAML (see docs/layout.md)")
+    ap.add_argument("-o", "--output", required=True, help="output folder (DIR/<patch name>)")
+    ap.add_argument("--force", action="store_true", help="rebuild up-to-date bundles too")
+    ap.add_argument("--jobs", type=int, default=None, help="parallel processes (default 2)")
+    ap.add_argument("--patch", action="append", help="build only this patch (repeatable)")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    args = ap.parse_args(argv)
+    if args.jobs is not None and args.jobs < 1:
+        print(f"ERROR: --jobs must be >= 1, got {args.jobs}", file=sys.stderr)
+        return 1
+    t0 = time.perf_counter()
+    try:
+        status = build_layout(
+            args.layout,
+            args.output,
+            force=args.force,
+            jobs=args.jobs,
+            patches=args.patch,
+            progress=not args.quiet,
+        )
+    except (LayoutError, BundleError, ValueError, KeyError, OSError) as exc:
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f"ERROR: {msg}", file=sys.stderr)
+        return 1
+    for name, st in status.items():
+        print(f"{name}: {st} ({Path(args.output) / name})")
+    print(f"done in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,351 @@
+"""Online reconstruction of one patch: taxel ΔC or compression δ → pressure, deflection, summary.
+
+:class:`Reconstructor` is loaded from a matrix bundle (built offline by
+:mod:`tactile_contact.build`) and does per frame only what the scene needs:
+
+1. ΔC [F] → δ [m] per taxel (:func:`tactile_contact.sensor.delta_c_to_compression`).
+2. *Contact test*: no valid taxel with |δ| above the noise threshold → a zero result, no solve.
+   |δ|, not δ > 0: a small contact between taxels makes every nearby taxel read negative.
+3. *Free solution*: q = C⁺_λ·δ with the precomputed regularised inverse (float32 product).
+   If no cell is below −3 σ (σ = the cell's noise from the measurement noise through C⁺_λ),
+   it is the answer (path ``"free"``).
+4. Otherwise the *constrained solve* (path ``"nnls"``): non-negative Tikhonov least squares,
+   twice — over the whole grid, then restricted to cells within ``support_radius`` of the cells
+   carrying at least ``seed_fraction`` of the first pass's peak. The second pass removes the
+   broad, nearly invisible pressure that a ν = 0.5 layer admits (its response to a uniform
+   load vanishes) and that otherwise inflates the net force (docs/reconstruction.md).
+5. Summary (total force, CoP, area, peak) and, when wanted, the deflection grid = G·q.
+
+Methods ``tikhonov``, ``tsvd`` and ``pinv`` (the paper's) use the free product only.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from tactile_contact.bundle import Bundle, load_bundle
+from tactile_contact.grids import Grid, distance_to_points
+from tactile_contact.sensor import delta_c_in_range, delta_c_to_compression
+from tactile_contact.summary import summarize
+
+
+@dataclass(frozen=True)
+class ContactResult:
+    """Result of one frame (SI units).
+
+    Attributes:
+        traction: (rows, cols) pressure [Pa] on the traction grid (0 off the skin), or None
+            when not requested.
+        deflection: (rows, cols) effective deflection u_z(0) − u_z(h) [m] on the deflection
+            grid, or None when not requested.
+        total_force: net normal force [N].
+        cop: centre of pressure (x, y) [m], patch frame; (0, 0) without contact.
+        contact_area: area of the cells in contact [m²] (see :mod:`tactile_contact.summary`).
+        peak_pressure: largest cell pressure [Pa].
+        in_contact: a taxel read above the noise threshold and the solve found pressure.
+        solver: which path ran: ``none`` (no contact), ``free``, ``nnls``, ``pinv``,
+            ``tikhonov`` or ``tsvd``.
+        success: the solver converged (False results still hold its last iterate).
+        iterations: solver iterations (0 for products).
+        residual_norm: ‖C·q − δ‖ [m] over the valid taxels.
+        solve_time: wall time of the solve [s].
+        taxels_active: valid taxels with |δ| above the noise threshold.
+    """
+
+    traction: NDArray[np.float64] | None
+    deflection: NDArray[np.float64] | None
+    total_force: float
+    cop: tuple[float, float]
+    contact_area: float
+    peak_pressure: float
+    in_contact: bool
+    solver: str
+    success: bool
+    iterations: int
+    residual_norm: float
+    solve_time: float
+    taxels_active: int
+
+
+def _grid(bundle: Bundle, key: str) -> Grid:
+    g = bundle.manifest[key]
+    return Grid(
+        (float(g["origin"][0]), float(g["origin"][1])),
+        float(g["cell"]),
+        (int(g["shape"][0]), int(g["shape"][1])),
+        np.asarray(bundle[f"{key}_mask"], bool),
+    )
+
+
+class Reconstructor:
+    """Reconstruction of one patch from its bundle (see module docstring).
+
+    Attributes:
+        patch, frame_id: patch name and frame.
+        taxel_xy: (K, 2) taxel centres [m], patch frame, bundle taxel order.
+        taxel_ids: (K,) bus-unique taxel ids (:func:`tactile_contact.modules.taxel_id`).
+        traction_grid, deflection_grid: :class:`tactile_contact.grids.Grid`.
+        params: read-only mapping of the physical and solver parameters (thickness [m],
+            young [Pa], poisson, epsilon_r, taxel_radius [m], area [m²], method, ...).
+        forward: (K, N) matrix C [m/Pa] from traction cells to taxel compressions.
+    """
+
+    def __init__(self, bundle: Bundle) -> None:
+        m = bundle.manifest
+        self.bundle = bundle
+        self.patch: str = str(m["patch"])
+        self.frame_id: str = str(m.get("frame_id", self.patch))
+        self.params: Mapping[str, Any] = MappingProxyType(dict(m["params"]))
+        self.taxel_xy = np.asarray(bundle["taxel_xy"], dtype=np.float64)
+        self.taxel_ids = np.asarray(bundle["taxel_ids"], dtype=np.int64)
+        self.traction_grid = _grid(bundle, "traction_grid")
+        self.deflection_grid = _grid(bundle, "deflection_grid")
+        self.forward = np.asarray(bundle["forward"], dtype=np.float64)
+        self._inverse = np.asarray(bundle["inverse"], dtype=np.float32)
+        self._deflection_op = bundle["deflection_operator"]  # memory-mapped, used on demand
+        self._centers = self.traction_grid.centers()
+        p = self.params
+        self.method: str = str(p["method"])
+        self.noise: float = float(p["noise"])
+        # Per-cell noise of the free solution, for the "violates non-negativity" test.
+        self._cell_noise = self.noise * np.linalg.norm(self._inverse.astype(np.float64), axis=1)
+        self._solvers: dict[bytes, Any] = {}
+
+    @classmethod
+    def from_bundle(
+        cls, path: str | Path, expected_layout: Any = None, *, verify: bool = True
+    ) -> Reconstructor:
+        """Load the bundle at ``path`` (errors: :class:`tactile_contact.bundle.BundleError`)."""
+        return cls(load_bundle(path, expected_layout, verify=verify))
+
+    @property
+    def n_taxels(self) -> int:
+        return len(self.taxel_xy)
+
+    def compression(self, delta_c: ArrayLike) -> NDArray[np.float64]:
+        """ΔC [F] → δ [m] with the bundle's sensor parameters."""
+        p = self.params
+        return delta_c_to_compression(delta_c, p["thickness"], p["epsilon_r"], p["area"])
+
+    def _check(self, x: ArrayLike, name: str, valid: ArrayLike | None) -> tuple[NDArray, NDArray]:
+        v = np.asarray(x, dtype=np.float64)
+        if v.shape != (self.n_taxels,):
+            raise ValueError(
+                f"{name} must have shape ({self.n_taxels},) in the bundle's taxel "
+                f"order, got {v.shape}"
+            )
+        ok = np.ones(self.n_taxels, bool) if valid is None else np.asarray(valid, dtype=bool)
+        if ok.shape != (self.n_taxels,):
+            raise ValueError(f"valid must have shape ({self.n_taxels},), got {ok.shape}")
+        ok = ok & np.isfinite(v)
+        return np.where(ok, v, 0.0), ok
+
+    def solve(
+        self,
+        delta_c: ArrayLike,
+        valid: ArrayLike | None = None,
+        *,
+        want_traction: bool = True,
+        want_deflection: bool = True,
+    ) -> ContactResult:
+        """Reconstruct from capacitance changes ΔC [F] (K,), bundle taxel order.
+
+        ``valid`` (K,) bool excludes taxels (NaN readings are excluded too, and readings at or
+        below −C0, which no compression explains). ``want_*`` False skips that output.
+        """
+        dc, ok = self._check(delta_c, "delta_c", valid)
+        p = self.params
+        ok &= delta_c_in_range(dc, p["thickness"], p["epsilon_r"], p["area"])
+        delta = np.where(ok, self.compression(np.where(ok, dc, 0.0)), 0.0)
+        return self._solve(delta, ok, want_traction, want_deflection)
+
+    def solve_deflection(
+        self,
+        delta: ArrayLike,
+        valid: ArrayLike | None = None,
+        *,
+        want_traction: bool = True,
+        want_deflection: bool = True,
+    ) -> ContactResult:
+        """Reconstruct from taxel compressions δ [m] (K,), bundle taxel order."""
+        d, ok = self._check(delta, "delta", valid)
+        return self._solve(d, ok, want_traction, want_deflection)
+
+    # ----------------------------------------------------------------------------------------
+
+    def _zero(self, want_traction: bool, want_deflection: bool, active: int) -> ContactResult:
+        tg, dg = self.traction_grid, self.deflection_grid
+        return ContactResult(
+            np.zeros(tg.shape) if want_traction else None,
+            np.zeros(dg.shape) if want_deflection else None,
+            0.0,
+            (0.0, 0.0),
+            0.0,
+            0.0,
+            False,
+            "none",
+            True,
+            0,
+            0.0,
+            0.0,
+            active,
+        )
+
+    def _solve(self, delta: NDArray, ok: NDArray, want_t: bool, want_d: bool) -> ContactResult:
+        active = int(np.count_nonzero(ok & (np.abs(delta) > self.noise)))
+        if active == 0:
+            return self._zero(want_t, want_d, 0)
+        t0 = time.perf_counter()
+        success, iterations, path = True, 0, self.method
+        if ok.all():
+            q = (self._inverse @ delta.astype(np.float32)).astype(np.float64)
+        else:
+            q = self._masked_free(ok) @ delta[ok]
+        if self.method == "nnls_tikhonov":
+            path = "free"
+            if np.any(q < -3.0 * self._cell_noise):
+                path = "nnls"
+                q, success, iterations = self._constrained(delta, ok)
+        dt = time.perf_counter() - t0
+        residual = float(np.linalg.norm((self.forward @ q - delta)[ok]))
+        s = summarize(
+            q,
+            self._centers,
+            self.traction_grid.cell_area,
+            float(self.params["rel_threshold"]),
+            float(self.params["min_pressure"]),
+        )
+        deflection = None
+        if want_d:
+            dg = self.deflection_grid
+            deflection = dg.to_image(
+                np.asarray(self._deflection_op, np.float32) @ q.astype(np.float32)
+            )
+            deflection = deflection.astype(np.float64)
+        return ContactResult(
+            self.traction_grid.to_image(q) if want_t else None,
+            deflection,
+            s.total_force,
+            s.cop,
+            s.contact_area,
+            s.peak_pressure,
+            s.in_contact,
+            path,
+            success,
+            iterations,
+            residual,
+            dt,
+            active,
+        )
+
+    def _masked_free(self, ok: NDArray) -> NDArray[np.float64]:
+        """Free inverse for a subset of taxels (cached per subset; rows of C dropped)."""
+        key = b"free" + np.packbits(ok).tobytes()
+        if key not in self._solvers:
+            p = self.params
+            a = self.forward[ok]
+            rank = min(int(p["tsvd_rank"] or min(a.shape)), *a.shape)
+            self._solvers[key] = regularised_inverse(
+                a, self.method, float(p["tikhonov"]), self._regulariser(), float(p["rcond"]), rank
+            )
+        return self._solvers[key]
+
+    def _regulariser(self) -> NDArray[np.float64] | None:
+        return (
+            np.asarray(self.bundle["regulariser"]) if "regulariser" in self.bundle.arrays else None
+        )
+
+    def _nnls(self, cols: NDArray | None, ok: NDArray, delta: NDArray, warm: bool):
+        key = np.packbits(ok).tobytes() + (b"" if cols is None else np.packbits(cols).tobytes())
+        solver = self._solvers.get(key) if warm else None
+        if solver is None:
+            a = self.forward[ok] if cols is None else self.forward[np.ix_(ok, cols)]
+            reg = self._regulariser()
+            if reg is not None and cols is not None:
+                reg = reg[:, cols]
+            solver = nnls_solver(
+                a, float(self.params["tikhonov"]), reg, str(self.params["nnls_method"])
+            )
+            if warm:
+                self._solvers[key] = solver
+        res = solver.solve(delta[ok], warm_start=warm)
+        return np.asarray(res.x, dtype=np.float64), bool(res.success), int(res.iterations)
+
+    def _constrained(self, delta: NDArray, ok: NDArray) -> tuple[NDArray, bool, int]:
+        q1, s1, it1 = self._nnls(None, ok, delta, warm=True)
+        peak = q1.max(initial=0.0)
+        if peak <= 0:
+            return q1, s1, it1
+        seeds = self._centers[q1 >= float(self.params["seed_fraction"]) * peak]
+        cols = distance_to_points(self._centers, seeds) <= float(self.params["support_radius"])
+        q2, s2, it2 = self._nnls(cols, ok, delta, warm=False)
+        q = np.zeros_like(q1)
+        q[cols] = q2
+        return q, s1 and s2, it1 + it2
+
+
+# --- solver access ------------------------------------------------------------------------
+# The project's solvers live in tactile_contact.solvers. Until that module is importable the two
+# helpers below fall back to numpy's SVD and scipy.optimize.nnls on the stacked Tikhonov system
+# (same objective ‖Ax − d‖² + λ²‖Lx‖², no warm start), so bundles build and tests run.
+
+
+def regularised_inverse(
+    matrix: NDArray, method: str, lam: float, reg: NDArray | None, rcond: float, rank: int
+) -> NDArray[np.float64]:
+    """(N, K) free inverse: ``pinv`` (rcond), ``tsvd`` (rank) or Tikhonov (λ, regulariser)."""
+    try:
+        from tactile_contact.solvers import SvdInverse
+    except ImportError:
+        SvdInverse = None
+    if SvdInverse is not None:
+        inv = SvdInverse(matrix, regulariser=reg)
+        if method == "pinv":
+            return np.asarray(inv.pinv_operator(rcond), dtype=np.float64)
+        if method == "tsvd":
+            return np.asarray(inv.tsvd_operator(rank), dtype=np.float64)
+        return np.asarray(inv.tikhonov_operator(lam), dtype=np.float64)
+    if method == "pinv":
+        return np.linalg.pinv(matrix, rcond=rcond)
+    if method == "tsvd":
+        u, sv, vt = np.linalg.svd(matrix, full_matrices=False)
+        return (vt[:rank].T / sv[:rank]) @ u[:rank].T
+    ell = np.eye(matrix.shape[1]) if reg is None else reg
+    return np.linalg.solve(matrix.T @ matrix + lam**2 * (ell.T @ ell), matrix.T)
+
+
+class _StackedNnls:
+    def __init__(self, matrix: NDArray, tikhonov: float, regulariser: NDArray | None) -> None:
+        ell = np.eye(matrix.shape[1]) if regulariser is None else regulariser
+        self.a = np.vstack([matrix, tikhonov * ell])
+        self.k = matrix.shape[0]
+
+    def solve(self, d: NDArray, warm_start: bool = True) -> Any:
+        from types import SimpleNamespace
+
+        from scipy.optimize import nnls
+
+        b = np.concatenate([d, np.zeros(self.a.shape[0] - self.k)])
+        try:
+            x, _ = nnls(self.a, b, maxiter=50 * self.a.shape[1])
+            ok = True
+        except RuntimeError:
+            x, ok = np.zeros(self.a.shape[1]), False
+        return SimpleNamespace(x=x, success=ok, iterations=0)
+
+
+def nnls_solver(matrix: NDArray, tikhonov: float, regulariser: NDArray | None, method: str) -> Any:
+    """A warm-startable NNLS(+Tikhonov) solver object with ``.solve(d, warm_start)``."""
+    try:
+        from tactile_contact.solvers import NnlsSolver
+    except ImportError:
+        return _StackedNnls(matrix, tikhonov, regulariser)
+    return NnlsSolver(matrix, tikhonov=tikhonov, regulariser=regulariser, method=method)
