@@ -226,3 +226,27 @@ def test_end_to_end_held_contact_through_log_and_baseline(tmp_path: Path) -> Non
     got_end, want_end = window(122.0, 123.0)
     assert got_end[i] >= 0.9 * got[i]
     assert np.all(np.abs(got_end - want_end) < 1.5 * lsb)
+
+
+def test_exact_capacitance_option_through_the_forward_model() -> None:
+    try:
+        from tactile_contact.indenters import HertzSphere
+        from tactile_contact.layout import load_layout
+    except ImportError as exc:
+        pytest.skip(f"forward model not available yet: {exc}")
+    patch = load_layout(Path(__file__).parents[1] / "config" / "hexagon_patch.yaml").patches[0]
+    xy = patch.channel_xy()
+    i = 4 * 12 + 3
+    ind = Indentation.press(
+        HertzSphere(6e-3), 1.0, tuple(xy[i]), start_s=0.0, ramp_s=0.05, hold_s=1.0
+    )
+    exact = simulator_for_patch(patch, noise_cdc=0.0, exact_capacitance=True).period(ind, 0.5)
+    tr = exact.truth
+    plate = compression_to_delta_c(tr.compression, 2e-3, 4.37, np.pi * 2e-3**2)
+    # 1/(h − δ) is convex: the exact mean over the electrode is at least the plate formula of
+    # the mean compression, and close to it for small δ/h.
+    assert tr.delta_c[i] > 0
+    assert np.all(tr.delta_c >= plate - 1e-21)
+    assert tr.delta_c[i] == pytest.approx(plate[i], rel=0.05)
+    with pytest.raises(TypeError, match="delta_c"):
+        SkinSimulator(MODULES, BumpModel(XY), exact_capacitance=True)
