@@ -354,8 +354,8 @@ class ModuleCounters:
     """Readings completed from B then A."""
     error_readings: int = 0
     """Readings whose module status reported an error flag."""
-    last_timestamp: float = -math.inf
-    """Receive time [s] of the last complete reading (−inf before the first)."""
+    last_timestamp: float | None = None
+    """Receive time [s] of the last complete reading (None before the first)."""
     last_error_flags: int = 0
 
 
@@ -469,8 +469,8 @@ class PeriodAssembler:
         out = []
         for k in sorted(keys):
             st = self._state.get(k)
-            last = st.counters.last_timestamp if st is not None else -math.inf
-            if now - last > timeout_s:
+            last = st.counters.last_timestamp if st is not None else None
+            if last is None or now - last > timeout_s:
                 out.append((k >> 4, k & 0xF))
         return out
 
@@ -640,7 +640,7 @@ class PatchBuffer:
         self.out_of_range = np.zeros(n, dtype=bool)
         self.module_error = np.zeros(n, dtype=bool)
         self.seen = np.zeros(len(mods), dtype=bool)
-        self.stamp = -math.inf
+        self.stamp = 0.0  # newest receive time [s]; 0.0 until the first reading
 
     def slot(self, board: int, triangle: int) -> int | None:
         """Index of a module in this patch (None if it is not in it)."""
@@ -656,8 +656,9 @@ class PatchBuffer:
         self.fresh[sl] = True
         self.out_of_range[sl] = (reading.oor_mask & _CHANNEL_BITS) != 0
         self.module_error[sl] = reading.error_flags & (ERROR_I2C | ERROR_NOT_CONNECTED) != 0
+        first = not self.seen.any()
         self.seen[i] = True
-        self.stamp = max(self.stamp, reading.timestamp)
+        self.stamp = reading.timestamp if first else max(self.stamp, reading.timestamp)
         return True
 
     @property

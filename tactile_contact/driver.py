@@ -244,7 +244,7 @@ class SkinDriverCore:
             rate = 0.0
             if len(times) >= 2 and times[-1] > times[0]:
                 rate = (len(times) - 1) / (times[-1] - times[0])
-            last = mc.last_timestamp if mc is not None else -math.inf
+            last = mc.last_timestamp if mc is not None else None
             modules[f"b{m[0]}t{m[1]}"] = {
                 "rate_hz": rate,
                 "readings": mc.readings if mc else 0,
@@ -253,7 +253,7 @@ class SkinDriverCore:
                 "duplicates": mc.duplicates if mc else 0,
                 "error_readings": mc.error_readings if mc else 0,
                 "last_error_flags": mc.last_error_flags if mc else 0,
-                "silent": now - last > self.stale_after_s,
+                "silent": last is None or now - last > self.stale_after_s,
             }
         patches = {}
         for p in self._patches:
