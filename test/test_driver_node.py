@@ -580,3 +580,33 @@ def test_config_yaml_loads_as_params_file_with_the_declared_defaults(
                     assert n.get_parameter(name).value == value, name
         finally:
             n.destroy_node()
+
+
+def test_lifecycle_cycle_stops_and_restarts_publishing(harness_factory: Any) -> None:
+    from rclpy.lifecycle import TransitionCallbackReturn
+
+    ok = TransitionCallbackReturn.SUCCESS
+    h = harness_factory(autostart=False)
+    d = h.driver
+    assert d._state_machine.current_state[1] == "unconfigured"
+    assert d.trigger_configure() == ok
+    h.wait_matched()
+    assert d.trigger_activate() == ok
+    h.send(p.messages for p in simulator().periods(None, 0.3))
+    assert h.spin_until(lambda: len(h.taxels) >= 10, 5.0)
+    assert d.trigger_deactivate() == ok
+    h.spin_until(lambda: not h.sending(), 5.0)
+    n = len(h.taxels)
+    h.send(p.messages for p in simulator().periods(None, 0.2, start_s=1.0))
+    h.spin_for(0.4)
+    assert len(h.taxels) == n, "inactive: nothing published"
+    assert d.trigger_activate() == ok  # frames queued while inactive are dropped, not published
+    h.spin_for(0.2)
+    assert len(h.taxels) == n
+    assert d.trigger_deactivate() == ok
+    assert d.trigger_cleanup() == ok and d._bus is None
+    assert d.trigger_configure() == ok
+    h.wait_matched()
+    assert d.trigger_activate() == ok
+    h.send(p.messages for p in simulator().periods(None, 0.3, start_s=2.0))
+    assert h.spin_until(lambda: len(h.taxels) >= n + 10, 5.0), "active again after cleanup"

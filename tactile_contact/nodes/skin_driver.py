@@ -42,7 +42,13 @@ from tactile_contact.baseline import BaselineConfig
 from tactile_contact.layout import load_layout
 from tactile_contact.msg import TaxelArray
 from tactile_contact.nodes import common as cm
-from tactile_contact.nodes.skin_stream import BusErrorPolicy, PatchFrame, SkinStream, open_bus
+from tactile_contact.nodes.skin_stream import (
+    BusErrorPolicy,
+    PatchFrame,
+    ReplayBus,
+    SkinStream,
+    open_bus,
+)
 
 WARN_THROTTLE_S = 5.0
 SUCCESS = TransitionCallbackReturn.SUCCESS
@@ -255,6 +261,7 @@ class SkinDriver(LifecycleNode):
         try:
             if self._params["send_config"]:
                 self._send_config()
+            self._drain()
             self._stop.clear()
             self._thread = threading.Thread(target=self._receive_loop, name="skin_rx", daemon=True)
             self._thread.start()
@@ -263,6 +270,17 @@ class SkinDriver(LifecycleNode):
             return FAILURE
         self.get_logger().info("active: publishing")
         return super().on_activate(state)
+
+    def _drain(self) -> None:
+        """Drop frames queued while inactive (old data must not come out with old stamps)."""
+        if isinstance(self._bus, ReplayBus) or self._stream is None:
+            return
+        dropped = 0
+        while dropped < 1_000_000 and self._bus.recv(0.0) is not None:
+            dropped += 1
+        self._stream.assembler.reset()
+        if dropped:
+            self.get_logger().info(f"dropped {dropped} frames queued while inactive")
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._stop_thread()
