@@ -10,6 +10,9 @@ Publication rule per patch: when every module of the patch has delivered a readi
 last publication, or when a module delivers its next reading before the others did (a period
 boundary passed: the missing modules are flagged stale), or from :meth:`poll` when the newest
 reading is older than ``stale_after_s``.
+
+Not thread-safe: call everything from one thread, or hold one lock around ``on_message``,
+``poll``, ``tare`` and ``diagnostics`` when a service runs on another thread.
 """
 
 from __future__ import annotations
