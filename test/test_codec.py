@@ -361,3 +361,16 @@ def test_assembler_never_mixes_periods(plan) -> None:
     assert sorted(int(r.values[0]) for r in got) == sorted(complete)
     c = asm.counters
     assert c.readings == len(complete)
+
+
+def test_decode_accepts_any_bytes_like() -> None:
+    raw = bytes([FRAME_B, 1, 2, 3, 4, 5, 0x80, 0x02])
+    for data in (raw, bytearray(raw), memoryview(raw)):
+        f = decode_frame(0x401, data)
+        assert list(f.values) == [1, 2, 3, 4, 5]
+        assert (f.oor_mask, f.error_flags) == (0x800, ERROR_NOT_CONNECTED)
+    asm = PeriodAssembler()
+    asm.feed_raw(0x401, bytearray([FRAME_A] + [9] * 7), 0.0)
+    r = asm.feed_raw(0x401, memoryview(raw), 0.0)
+    assert r is not None and list(r.values) == [9] * 7 + [1, 2, 3, 4, 5]
+    assert r.out_of_range[11] and r.error_flags == ERROR_NOT_CONNECTED

@@ -123,3 +123,15 @@ def test_sensor_params_bundle() -> None:
     assert p.compression_to_delta_c(p.delta_c_to_compression(dc)) == pytest.approx(dc)
     with pytest.raises(ValueError, match="no_load"):
         SensorParams(no_load=300)
+
+
+def test_per_taxel_parameters_broadcast() -> None:
+    h = np.array([1e-3, 2e-3, 3e-3])
+    area = np.array([1e-5, 1.2e-5, 2e-5])
+    delta = np.array([1e-4, -2e-5, 5e-4])
+    dc = compression_to_delta_c(delta, h, ER, area)
+    for k in range(3):  # element by element against the scalar form
+        assert dc[k] == pytest.approx(compression_to_delta_c(delta[k], h[k], ER, area[k]))
+    assert np.allclose(delta_c_to_compression(dc, h, ER, area), delta)
+    gains = counts_to_delta_c([230, 230], 240, [0.24e-15, 0.32e-15], [2, 3])
+    assert np.allclose(gains, [10 * 4 * 0.24e-15, 10 * 8 * 0.32e-15])
