@@ -239,7 +239,8 @@ class SkinDriver(LifecycleNode):
             return f"replay of {p['replay_file']}"
         return f"{p['interface']}:{p['channel']}"
 
-    def _open_bus(self) -> can.BusABC | Any | None:
+    def _open_bus(self, reconnecting: bool = False) -> can.BusABC | Any | None:
+        """The bus, or None after logging why not (throttled while reconnecting)."""
         p = self._params
         assert self._stream is not None
         try:
@@ -252,9 +253,11 @@ class SkinDriver(LifecycleNode):
                 can_filters=self._stream.can_filters(),
             )
         except Exception as exc:  # python-can raises many types for a bus it cannot open
-            self.get_logger().error(
-                f"cannot open CAN bus {self._bus_name()}: {type(exc).__name__}: {exc}"
-            )
+            text = f"cannot open CAN bus {self._bus_name()}: {type(exc).__name__}: {exc}"
+            if reconnecting:
+                self.get_logger().warning(text, throttle_duration_sec=WARN_THROTTLE_S)
+            else:
+                self.get_logger().error(text)
             return None
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -359,7 +362,7 @@ class SkinDriver(LifecycleNode):
                 self._stop.wait(p["reconnect_interval_s"])
                 with self._lock:
                     policy.reconnect_attempts += 1
-                bus = self._open_bus()
+                bus = self._open_bus(reconnecting=True)
                 if bus is None:
                     continue
                 self._bus = bus
