@@ -114,6 +114,10 @@ def love_matrix(
     size = np.maximum(a, b)
     # a slightly smaller radius than the plan's, so that rounding never misses a far pair
     far_r2 = (effective_far_radius(size, h, nu) * (1.0 - 1e-9)) ** 2
+    # In-range tests widened by many roundings of the coordinates: a pair the mask lets through
+    # but that lies outside both ranges simply gets a zero correction.
+    slack = 64.0 * np.finfo(float).eps * max(np.abs(p).max(), np.abs(c).max(), 1e-300)
+    edge_a, edge_b = a * (1.0 + 1e-12) + slack, b * (1.0 + 1e-12) + slack
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         for rows in _chunks(p.shape[0], max(n, ukeys.size), chunk_elements):
             px, py = p[rows, 0:1], p[rows, 1:2]
@@ -124,7 +128,7 @@ def love_matrix(
             blk += np.take(ec, corner[1, 1], axis=1)
             dx, dy = px - c[None, :, 0], py - c[None, :, 1]
             # Edge terms exist only where the point lies in a cell's x- or y-range.
-            kk, nn = np.nonzero((np.abs(dx) <= 2.0 * a) | (np.abs(dy) <= 2.0 * b))
+            kk, nn = np.nonzero((np.abs(dx) <= edge_a) | (np.abs(dy) <= edge_b))
             if kk.size:
                 # the same corner offsets as in ec, so that the signs match bit for bit
                 xk, yk = px[kk, 0], py[kk, 0]
