@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -28,11 +28,78 @@ import numpy as np
 from numpy.typing import NDArray
 
 from tactile_contact.baseline import BaselineConfig, BaselineTracker
-from tactile_contact.codec import CHANNELS, PatchBuffer, PeriodAssembler, SkinReading
+from tactile_contact.codec import (
+    CHANNELS,
+    ERROR_I2C,
+    ERROR_NOT_CONNECTED,
+    PeriodAssembler,
+    SkinReading,
+    skin_id,
+)
 from tactile_contact.modules import taxel_id
 
 if TYPE_CHECKING:
     from tactile_contact.layout import PatchLayout
+
+
+class PatchBuffer:
+    """Latest readings of a patch's modules as (12·M,) arrays in layout order.
+
+    The driver puts every :class:`SkinReading` of the patch's modules here and, once per
+    publication, takes the arrays (and which channels are fresh) for the baseline tracker.
+
+    Args:
+        modules: (board, triangle) of each module, in layout order.
+        no_load: value the arrays hold before a module's first reading [counts].
+    """
+
+    def __init__(self, modules: Iterable[tuple[int, int]], no_load: int = 240) -> None:
+        mods = [(int(b), int(t)) for b, t in modules]
+        for b, t in mods:
+            skin_id(b, t)  # validates the address
+        if not mods or len(set(mods)) != len(mods):
+            raise ValueError(f"modules must be a non-empty list of unique pairs, got {mods}")
+        self.modules = mods
+        self._slot = {m: i for i, m in enumerate(mods)}
+        n = CHANNELS * len(mods)
+        if not 0 <= no_load <= 255:
+            raise ValueError(f"no_load must be within 0..255, got {no_load!r}")
+        self.raw = np.full(n, no_load, dtype=np.uint8)
+        self.fresh = np.zeros(n, dtype=bool)
+        self.out_of_range = np.zeros(n, dtype=bool)
+        self.module_error = np.zeros(n, dtype=bool)
+        self.seen = np.zeros(len(mods), dtype=bool)
+        self.stamp = 0.0  # newest receive time [s]; 0.0 until the first reading
+
+    def slot(self, board: int, triangle: int) -> int | None:
+        """Index of a module in this patch (None if it is not in it)."""
+        return self._slot.get((board, triangle))
+
+    def put(self, reading: SkinReading) -> bool:
+        """Store a reading; False if its module is not in this patch."""
+        i = self._slot.get((reading.board, reading.triangle))
+        if i is None:
+            return False
+        sl = slice(CHANNELS * i, CHANNELS * (i + 1))
+        self.raw[sl] = reading.values
+        self.fresh[sl] = True
+        self.out_of_range[sl] = reading.out_of_range
+        self.module_error[sl] = reading.error_flags & (ERROR_I2C | ERROR_NOT_CONNECTED) != 0
+        first = not self.seen.any()
+        self.seen[i] = True
+        self.stamp = reading.timestamp if first else max(self.stamp, reading.timestamp)
+        return True
+
+    @property
+    def complete(self) -> bool:
+        """Every module delivered a reading since the last :meth:`take`."""
+        return bool(np.all(self.fresh[::CHANNELS]))
+
+    def take(self) -> tuple[NDArray[np.uint8], NDArray[np.bool_], float]:
+        """(raw copy, fresh copy, newest receive time [s]); clears the fresh flags."""
+        out = self.raw.copy(), self.fresh.copy(), self.stamp
+        self.fresh[:] = False
+        return out
 
 
 @dataclass(frozen=True)

@@ -316,29 +316,6 @@ def test_host_commands_bytes() -> None:
         set_triangle_config(0, 0, 1, 2, True, 0x10000)
 
 
-def test_patch_buffer() -> None:
-    from tactile_contact.codec import PatchBuffer
-
-    buf = PatchBuffer([(0, 1), (2, 3)])
-    assert not buf.complete and list(buf.raw[:3]) == [240] * 3
-    asm = PeriodAssembler()
-    (r1,) = asm.feed_many(
-        reading_messages(2, 3, VALS, oor_mask=0x1, error_flags=ERROR_I2C, timestamp=1.0)
-    )
-    assert buf.put(r1) and not buf.complete
-    (r0,) = asm.feed_many(reading_messages(0, 1, [7] * 12, timestamp=0.5))
-    assert buf.put(r0) and buf.complete
-    (r9,) = asm.feed_many(reading_messages(9, 9, [7] * 12))
-    assert not buf.put(r9)
-    raw, fresh, stamp = buf.take()
-    assert list(raw[12:]) == VALS and list(raw[:12]) == [7] * 12 and fresh.all()
-    assert stamp == pytest.approx(1.0) and not buf.complete and not buf.fresh.any()
-    assert buf.out_of_range[12] and not buf.out_of_range[13]
-    assert buf.module_error[12:].all() and not buf.module_error[:12].any()
-    with pytest.raises(ValueError, match="unique"):
-        PatchBuffer([(0, 1), (0, 1)])
-
-
 @given(
     plan=st.lists(st.tuples(st.booleans(), st.booleans(), st.booleans()), min_size=1, max_size=40)
 )

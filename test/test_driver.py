@@ -16,7 +16,8 @@ from tactile_contact.sensor import SensorParams
 layout_mod = pytest.importorskip("tactile_contact.layout")
 pytest.importorskip("tactile_contact.forward")
 
-from tactile_contact.driver import SkinDriverCore  # noqa: E402
+from tactile_contact.codec import ERROR_I2C, PeriodAssembler, reading_messages  # noqa: E402
+from tactile_contact.driver import PatchBuffer, SkinDriverCore  # noqa: E402
 from tactile_contact.indenters import HertzSphere  # noqa: E402
 from tactile_contact.simulator import Indentation, simulator_for_patch  # noqa: E402
 
@@ -145,3 +146,27 @@ def test_duplicate_module_in_two_patches_is_rejected() -> None:
     with pytest.raises(ValueError, match="in patches"):
         SkinDriverCore([p, p])
     assert math.isfinite(SkinDriverCore([p]).stale_after_s)
+
+
+_VALS = list(range(100, 112))
+
+
+def test_patch_buffer() -> None:
+    buf = PatchBuffer([(0, 1), (2, 3)])
+    assert not buf.complete and list(buf.raw[:3]) == [240] * 3
+    asm = PeriodAssembler()
+    (r1,) = asm.feed_many(
+        reading_messages(2, 3, _VALS, oor_mask=0x1, error_flags=ERROR_I2C, timestamp=1.0)
+    )
+    assert buf.put(r1) and not buf.complete
+    (r0,) = asm.feed_many(reading_messages(0, 1, [7] * 12, timestamp=0.5))
+    assert buf.put(r0) and buf.complete
+    (r9,) = asm.feed_many(reading_messages(9, 9, [7] * 12))
+    assert not buf.put(r9)
+    raw, fresh, stamp = buf.take()
+    assert list(raw[12:]) == _VALS and list(raw[:12]) == [7] * 12 and fresh.all()
+    assert stamp == pytest.approx(1.0) and not buf.complete and not buf.fresh.any()
+    assert buf.out_of_range[12] and not buf.out_of_range[13]
+    assert buf.module_error[12:].all() and not buf.module_error[:12].any()
+    with pytest.raises(ValueError, match="unique"):
+        PatchBuffer([(0, 1), (0, 1)])

@@ -194,7 +194,7 @@ def test_end_to_end_held_contact_through_log_and_baseline(tmp_path: Path) -> Non
     """Simulator → candump log → assembler → patch buffer → baseline: ΔC matches the truth
     within quantisation, and a 120 s hold is still reported at ≥ 90 %."""
     from tactile_contact.baseline import BaselineTracker
-    from tactile_contact.codec import PatchBuffer
+    from tactile_contact.driver import PatchBuffer
 
     sim = _sim(seed=11, period_s=0.05, noise_cdc=1.5, rest_spread_cdc=8, drift_cdc_per_s=0.01)
     ind = Indentation.press("sphere", 2.0, tuple(XY[3]), start_s=3.0, ramp_s=0.3, hold_s=120.0)
