@@ -1,0 +1,132 @@
+"""``tactile-contact``: run the pipeline without ``ros2 launch``, record and replay bags.
+
+    tactile-contact bringup [--simulate] [--duration S] [--record BAG]   the graph in one process
+    tactile-contact replay BAG [--rate R]          replay recorded taxels into a reconstruction node
+    tactile-contact demo                           the end-to-end demo (``make demo``)
+
+Errors are printed as ``ERROR: …`` with exit status 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+import time
+from pathlib import Path
+
+
+def _add_graph_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--layout", default="", help="patch layout YAML (default: hexagon patch)")
+    p.add_argument("--bundles", default="bundles", help="folder of matrix bundles")
+    p.add_argument("--namespace", default="")
+
+
+def _bringup(args: argparse.Namespace) -> int:
+    import rclpy
+    from rclpy.context import Context
+
+    from tactile_contact.bag import BagRecorder
+    from tactile_contact.nodes.bringup import GraphConfig, running_graph
+    from tactile_contact.nodes.topics import pipeline_topics
+
+    config = GraphConfig(
+        layout=args.layout,
+        bundles_dir=args.bundles,
+        simulate=args.simulate,
+        interface=args.interface or ("virtual" if args.simulate else "socketcan"),
+        channel=args.channel or ("tactile_contact" if args.simulate else "can0"),
+        scenario=args.scenario,
+        namespace=args.namespace,
+    )
+    context = Context()
+    rclpy.init(context=context)
+    recorder = None
+    try:
+        with running_graph(config, context) as executor:
+            if args.record:
+                node = rclpy.create_node("tactile_contact_recorder", context=context)
+                executor.add_node(node)
+                recorder = BagRecorder(node, args.record, pipeline_topics(config.layout_path))
+            deadline = time.monotonic() + args.duration if args.duration > 0 else None
+            while context.ok() and (deadline is None or time.monotonic() < deadline):
+                executor.spin_once(timeout_sec=0.1)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if recorder is not None:
+            recorder.close()
+            print(f"recorded {sum(recorder.counts.values())} messages to {args.record}")
+        rclpy.try_shutdown(context=context)
+    return 0
+
+
+def _replay(args: argparse.Namespace) -> int:
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import MultiThreadedExecutor
+
+    from tactile_contact.bag import BagPlayer
+    from tactile_contact.nodes.contact_reconstruction import ContactReconstructionNode
+
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        recon = ContactReconstructionNode(
+            context=context,
+            parameter_overrides=[rclpy.parameter.Parameter("bundles_dir", value=args.bundles)],
+        )
+        player_node = rclpy.create_node("tactile_contact_player", context=context)
+        player = BagPlayer(player_node, args.bag, topics=args.topics or None, rate=args.rate)
+        executor = MultiThreadedExecutor(context=context)
+        executor.add_node(recon)
+        executor.add_node(player_node)
+        thread = threading.Thread(target=player.play, daemon=True)
+        time.sleep(0.5)  # let discovery match publishers and subscribers
+        thread.start()
+        while thread.is_alive():
+            executor.spin_once(timeout_sec=0.05)
+        for _ in range(20):
+            executor.spin_once(timeout_sec=0.05)
+        print(f"replayed {player.published} messages from {args.bag}")
+    finally:
+        rclpy.try_shutdown(context=context)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="tactile-contact", description=__doc__.split("\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    b = sub.add_parser("bringup", help="simulator/driver/reconstruction in one process")
+    _add_graph_args(b)
+    b.add_argument("--simulate", action="store_true", help="simulated skin on a virtual bus")
+    b.add_argument("--interface", default="", help="python-can interface (socketcan on robots)")
+    b.add_argument("--channel", default="", help="CAN channel (can0 on robots)")
+    b.add_argument("--scenario", default="sweep", choices=["sweep", "press", "idle"])
+    b.add_argument("--duration", type=float, default=0.0, help="seconds to run (0: until ^C)")
+    b.add_argument("--record", default="", help="record the pipeline's topics to this bag")
+    r = sub.add_parser("replay", help="replay a bag's taxel arrays into a reconstruction node")
+    r.add_argument("bag")
+    r.add_argument("--bundles", default="bundles")
+    r.add_argument("--rate", type=float, default=1.0)
+    r.add_argument("--topics", nargs="*", default=[])
+    d = sub.add_parser("demo", help="end-to-end demo with figures and a PNG")
+    d.add_argument("rest", nargs=argparse.REMAINDER)
+    args = parser.parse_args(argv)
+    try:
+        if args.command == "bringup":
+            return _bringup(args)
+        if args.command == "replay":
+            if not Path(args.bag).exists():
+                raise FileNotFoundError(f"{args.bag}: no such bag")
+            return _replay(args)
+        from tactile_contact import demo
+
+        return demo.main(args.rest)
+    except (OSError, ValueError, RuntimeError) as exc:
+        print(f"ERROR: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

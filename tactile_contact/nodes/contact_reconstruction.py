@@ -1,0 +1,376 @@
+"""``contact_reconstruction`` node: taxel ΔC in, traction/deflection grids and contact summary out.
+
+A thin adapter over :class:`tactile_contact.reconstruction.Reconstructor`: one bundle per
+patch, loaded at start (a stale or broken bundle is refused with one log line and the other
+patches go on). Per patch it subscribes to ``<patch>/taxels`` and publishes
+
+- ``<patch>/contact`` (tactile_contact/ContactState), every frame;
+- ``<patch>/traction`` (sensor_msgs/Image 32FC1, Pa) and ``<patch>/deflection`` (32FC1, m);
+- ``<patch>/traction_geometry``, ``<patch>/deflection_geometry`` (tactile_contact/GridGeometry,
+  reliable + transient local, published once);
+- ``<patch>/taxel_markers`` (MarkerArray) and ``<patch>/pressure_cloud`` (PointCloud2) for rviz2;
+- ``/diagnostics`` (skips, stage timings, latency, errors).
+
+Work nobody asked for is skipped and counted: an output without subscribers is not computed
+(the deflection field is not even resampled), a patch with no contact costs no solve, and the
+constrained solve runs only when the free solution needs it (decided inside the Reconstructor).
+The subscription keeps only the newest frame, so a slow frame never queues old ones.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image, PointCloud2
+from std_msgs.msg import Header
+from visualization_msgs.msg import MarkerArray
+
+from tactile_contact.msg import ContactState, GridGeometry, TaxelArray
+from tactile_contact.nodes import convert
+from tactile_contact.nodes.common import (
+    DIAGNOSTICS_QOS,
+    ERROR,
+    OK,
+    STATIC_QOS,
+    STRING_ARRAY_EMPTY,
+    WARN,
+    declare_parameter,
+    diagnostic_status,
+    log_parameters,
+    seconds_from_stamp,
+)
+from tactile_contact.reconstruction import Reconstructor
+
+# Newest frame only: a reconstruction that falls behind drops old frames instead of queueing.
+INPUT_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+OUTPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+# A taxel with any of these flags is left out of the solve.
+_UNUSABLE = (
+    TaxelArray.STATUS_DISABLED
+    | TaxelArray.STATUS_STUCK
+    | TaxelArray.STATUS_DEAD
+    | TaxelArray.STATUS_SATURATED
+)
+
+PARAMETERS = (
+    "bundles_dir",
+    "patches",
+    "visualization_every",
+    "taxel_full_scale",
+    "diagnostics_period",
+)
+
+
+@dataclass
+class PatchStats:
+    """Counters and timings of one patch since start (timings keep the last 1000 frames)."""
+
+    frames: int = 0
+    solved: int = 0
+    constrained: int = 0
+    skipped_idle: int = 0
+    skipped_deflection: int = 0
+    skipped_images: int = 0
+    skipped_visualization: int = 0
+    bad_frames: int = 0
+    unpublishable: int = 0
+    last_error: str = ""
+    latency_s: deque = field(default_factory=lambda: deque(maxlen=1000))
+    stage_s: dict = field(default_factory=dict)
+
+    def time(self, stage: str, seconds: float) -> None:
+        self.stage_s.setdefault(stage, deque(maxlen=1000)).append(seconds)
+
+
+class PatchPipeline:
+    """Publishers, the reconstructor and the taxel mapping of one patch."""
+
+    def __init__(self, node: Node, recon: Reconstructor, bundle: Path) -> None:
+        self.node = node
+        self.recon = recon
+        self.bundle = bundle
+        self.name: str = recon.patch
+        self.frame_id: str = recon.frame_id
+        self.stats = PatchStats()
+        self._ids = np.asarray(recon.taxel_ids, dtype=np.int64)
+        self._perm_key: tuple[int, ...] | None = None
+        self._perm: np.ndarray | None = None
+        p = self.name
+        self.pub_contact = node.create_publisher(ContactState, f"{p}/contact", OUTPUT_QOS)
+        self.pub_traction = node.create_publisher(Image, f"{p}/traction", OUTPUT_QOS)
+        self.pub_deflection = node.create_publisher(Image, f"{p}/deflection", OUTPUT_QOS)
+        self.pub_geometry = {
+            g: node.create_publisher(GridGeometry, f"{p}/{g}_geometry", STATIC_QOS)
+            for g in ("traction", "deflection")
+        }
+        self.pub_markers = node.create_publisher(MarkerArray, f"{p}/taxel_markers", OUTPUT_QOS)
+        self.pub_cloud = node.create_publisher(PointCloud2, f"{p}/pressure_cloud", OUTPUT_QOS)
+        self.sub = node.create_subscription(TaxelArray, f"{p}/taxels", self.on_taxels, INPUT_QOS)
+        header = Header(frame_id=self.frame_id)
+        header.stamp = node.get_clock().now().to_msg()
+        for kind, grid in (
+            ("traction", recon.traction_grid),
+            ("deflection", recon.deflection_grid),
+        ):
+            self.pub_geometry[kind].publish(convert.grid_geometry(grid, kind, p, header))
+
+    def _permutation(self, ids: np.ndarray) -> np.ndarray:
+        """Index into the message arrays for each bundle taxel (cached per id order)."""
+        key = tuple(ids.tolist())
+        if key != self._perm_key:
+            where = {int(t): i for i, t in enumerate(ids)}
+            missing = [int(t) for t in self._ids if int(t) not in where]
+            if missing:
+                raise ValueError(
+                    f"taxel ids {[hex(t) for t in missing[:5]]} of bundle {self.bundle} "
+                    f"missing from the message ({len(missing)} in all)"
+                )
+            self._perm = np.array([where[int(t)] for t in self._ids], dtype=np.intp)
+            self._perm_key = key
+        assert self._perm is not None
+        return self._perm
+
+    def on_taxels(self, msg: TaxelArray) -> None:
+        """One frame: map, solve what is wanted, publish. Never raises into the executor."""
+        stats = self.stats
+        stats.frames += 1
+        t0 = time.perf_counter()
+        try:
+            n = len(msg.taxel_ids)
+            if not (len(msg.delta_c) == len(msg.status) == n):
+                raise ValueError(
+                    f"array lengths differ: taxel_ids {n}, delta_c {len(msg.delta_c)}, "
+                    f"status {len(msg.status)}"
+                )
+            perm = self._permutation(np.asarray(msg.taxel_ids, dtype=np.int64))
+            delta_c = np.asarray(msg.delta_c, dtype=np.float64)[perm]
+            status = np.asarray(msg.status, dtype=np.uint8)[perm]
+        except ValueError as exc:
+            stats.bad_frames += 1
+            stats.last_error = str(exc)
+            self.node.get_logger().error(
+                f"patch {self.name}: bad TaxelArray: {exc}", throttle_duration_sec=5.0
+            )
+            return
+        valid = ((status & _UNUSABLE) == 0) & np.isfinite(delta_c)
+        want_deflection = self.pub_deflection.get_subscription_count() > 0
+        want_traction = (
+            self.pub_traction.get_subscription_count() + self.pub_cloud.get_subscription_count()
+        ) > 0
+        t1 = time.perf_counter()
+        result = self.recon.solve(
+            np.where(valid, delta_c, 0.0),
+            valid=valid,
+            want_traction=want_traction,
+            want_deflection=want_deflection,
+        )
+        t2 = time.perf_counter()
+        stats.time("map", t1 - t0)
+        stats.time("solve", t2 - t1)
+        if not result.in_contact:
+            stats.skipped_idle += 1
+        else:
+            stats.solved += 1
+            stats.constrained += int(result.solver == "nnls")
+        if not want_deflection:
+            stats.skipped_deflection += 1
+        self._publish(msg, result, delta_c, valid, t0)
+        stats.time("publish", time.perf_counter() - t2)
+
+    def _publish(
+        self, msg: TaxelArray, result: Any, delta_c: np.ndarray, valid: np.ndarray, t0: float
+    ) -> None:
+        stats = self.stats
+        header = Header(stamp=msg.header.stamp, frame_id=self.frame_id)
+        try:
+            if result.traction is not None and self.pub_traction.get_subscription_count() > 0:
+                self.pub_traction.publish(convert.grid_image("traction", result.traction, header))
+            else:
+                stats.skipped_images += 1
+            if result.deflection is not None:
+                self.pub_deflection.publish(
+                    convert.grid_image("deflection", result.deflection, header)
+                )
+            self._publish_visualization(header, result, delta_c, valid)
+            now = self.node.get_clock().now()
+            latency = now.nanoseconds * 1e-9 - seconds_from_stamp(msg.header.stamp)
+            stats.latency_s.append(latency)
+            self.pub_contact.publish(
+                convert.contact_state(
+                    result,
+                    self.name,
+                    header,
+                    solver=str(result.solver),
+                    solver_success=bool(result.success),
+                    solver_iterations=int(result.iterations),
+                    residual_norm=float(np.nan_to_num(result.residual_norm)),
+                    solve_time=float(result.solve_time),
+                    latency=float(latency),
+                    taxels_used=int(valid.sum()),
+                    taxels_active=int(result.taxels_active),
+                )
+            )
+        except convert.NonFiniteError as exc:
+            stats.unpublishable += 1
+            stats.last_error = str(exc)
+            self.node.get_logger().error(f"patch {self.name}: {exc}", throttle_duration_sec=5.0)
+
+    def _publish_visualization(
+        self, header: Header, result: Any, delta_c: np.ndarray, valid: np.ndarray
+    ) -> None:
+        every = self.node.visualization_every
+        wanted = self.pub_markers.get_subscription_count() + self.pub_cloud.get_subscription_count()
+        if not wanted or self.stats.frames % every:
+            self.stats.skipped_visualization += 1
+            return
+        if self.pub_markers.get_subscription_count():
+            self.pub_markers.publish(
+                convert.taxel_markers(
+                    self.recon.taxel_xy,
+                    delta_c,
+                    valid,
+                    header,
+                    self.name,
+                    radius=float(self.recon.params.get("taxel_radius", 2e-3)),
+                    full_scale=self.node.taxel_full_scale,
+                )
+            )
+        if result.traction is not None and self.pub_cloud.get_subscription_count():
+            self.pub_cloud.publish(
+                convert.pressure_cloud(self.recon.traction_grid, result.traction, header)
+            )
+
+    def diagnostics(self) -> Any:
+        s = self.stats
+        values: dict[str, object] = {
+            "bundle": str(self.bundle),
+            "frames": s.frames,
+            "solved": s.solved,
+            "constrained_solves": s.constrained,
+            "skipped_idle": s.skipped_idle,
+            "skipped_deflection": s.skipped_deflection,
+            "skipped_images": s.skipped_images,
+            "skipped_visualization": s.skipped_visualization,
+            "bad_frames": s.bad_frames,
+            "unpublishable": s.unpublishable,
+        }
+        for stage, times in s.stage_s.items():
+            if times:
+                values[f"{stage}_median_ms"] = float(np.median(times) * 1e3)
+                values[f"{stage}_p99_ms"] = float(np.percentile(times, 99) * 1e3)
+        if s.latency_s:
+            values["latency_median_ms"] = float(np.median(s.latency_s) * 1e3)
+            values["latency_p99_ms"] = float(np.percentile(s.latency_s, 99) * 1e3)
+        level, message = OK, "ok"
+        if s.bad_frames or s.unpublishable:
+            level, message = WARN, s.last_error
+        if s.frames == 0:
+            level, message = WARN, "no taxel frames received yet"
+        return diagnostic_status(
+            f"contact_reconstruction: {self.name}", level, message, values, self.name
+        )
+
+
+class ContactReconstructionNode(Node):
+    """Loads one bundle per patch and runs a :class:`PatchPipeline` for each."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("contact_reconstruction", **kwargs)
+        self.bundles_dir = Path(
+            declare_parameter(
+                self, "bundles_dir", "bundles", "folder holding one matrix bundle per patch"
+            )
+        ).expanduser()
+        requested = declare_parameter(
+            self,
+            "patches",
+            STRING_ARRAY_EMPTY,
+            "patches to serve (empty: every bundle in bundles_dir); lets processes share a skin",
+        )
+        self.visualization_every = declare_parameter(
+            self,
+            "visualization_every",
+            1,
+            "publish rviz markers and the pressure cloud every N-th frame",
+            int_range=(1, 1000),
+        )
+        self.taxel_full_scale = declare_parameter(
+            self,
+            "taxel_full_scale",
+            2.0e-13,
+            "ΔC shown at full colour in the taxel markers",
+            unit="F",
+            float_range=(1e-16, 1e-9),
+        )
+        period = declare_parameter(
+            self,
+            "diagnostics_period",
+            1.0,
+            "period of /diagnostics",
+            unit="s",
+            float_range=(0.05, 60.0),
+        )
+        log_parameters(self, PARAMETERS)
+        self.load_errors: dict[str, str] = {}
+        self.pipelines: dict[str, PatchPipeline] = {}
+        for name, path in self._bundle_paths(requested).items():
+            try:
+                recon = Reconstructor.from_bundle(path)
+            except Exception as exc:  # every refusal is reported; other patches go on
+                self.load_errors[name] = f"{path}: {exc}"
+                self.get_logger().error(f"patch {name}: bundle refused: {path}: {exc}")
+                continue
+            self.pipelines[recon.patch] = PatchPipeline(self, recon, path)
+            self.get_logger().info(
+                f"patch {recon.patch}: {len(recon.taxel_ids)} taxels, "
+                f"traction grid {recon.traction_grid.shape}, bundle {path}"
+            )
+        if not self.pipelines:
+            self.get_logger().error(f"no usable bundle in {self.bundles_dir}")
+        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
+        self.create_timer(period, self.publish_diagnostics)
+
+    def _bundle_paths(self, requested: list[str]) -> dict[str, Path]:
+        if requested:
+            return {name: self.bundles_dir / name for name in requested}
+        if not self.bundles_dir.is_dir():
+            self.load_errors["*"] = f"{self.bundles_dir}: no such folder"
+            return {}
+        return {p.name: p for p in sorted(self.bundles_dir.iterdir()) if p.is_dir()}
+
+    def publish_diagnostics(self) -> None:
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [p.diagnostics() for p in self.pipelines.values()]
+        for name, error in self.load_errors.items():
+            msg.status.append(
+                diagnostic_status(f"contact_reconstruction: {name}", ERROR, error, {}, name)
+            )
+        self.pub_diag.publish(msg)
+
+
+def main(args: list[str] | None = None) -> None:
+    rclpy.init(args=args)
+    node = ContactReconstructionNode()
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
