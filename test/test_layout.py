@@ -1,0 +1,201 @@
+"""Patch layout loading and validation: the shipped configs load, every error names file, key
+path and problem."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from tactile_contact.layout import LayoutError, load_layout, parse_layout
+from tactile_contact.modules import place_channels, split_taxel_id
+
+ROOT = Path(__file__).resolve().parents[1]
+HEXAGON = ROOT / "config" / "hexagon_patch.yaml"
+ROBOT = ROOT / "config" / "robot_skin.yaml"
+
+
+@pytest.fixture
+def doc() -> dict:
+    return yaml.safe_load(HEXAGON.read_text())
+
+
+def test_hexagon_patch_geometry():
+    lay = load_layout(HEXAGON)
+    (p,) = lay.patches
+    assert p.name == "hexagon" and p.frame_id == "skin_hexagon"
+    xy = p.taxel_xy()
+    assert xy.shape == (72, 2)
+    d = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1))
+    np.fill_diagonal(d, np.inf)
+    # the paper's patch: every taxel has a neighbour at the 5.5 mm pitch, none closer
+    assert d.min() == pytest.approx(5.485e-3, abs=2e-5)
+    assert np.all(d.min(axis=1) < 5.6e-3)
+    # the hexagon's centre is shared by all six triangles: (16.732, -9.660) mm
+    assert np.allclose(xy.mean(axis=0), [16.732e-3, -9.660e-3], atol=1e-5)
+    ids = p.taxel_ids()
+    assert len(set(ids.tolist())) == 72
+    assert {split_taxel_id(int(t))[1] for t in ids} == set(range(6))
+    e, s = p.elastomer, p.sensor
+    assert (e.thickness, e.young, e.poisson) == (2e-3, 2.1e5, 0.5)
+    assert (s.epsilon_r, s.taxel_radius, s.farad_per_count, s.no_load, s.shift) == (
+        4.37,
+        2e-3,
+        0.32e-15,
+        240,
+        2,
+    )
+    assert p.grid.traction_cell == 2e-3
+
+
+def test_taxel_order_matches_module_placement():
+    p = load_layout(HEXAGON).patches[0]
+    m = p.modules[1]
+    expect = place_channels(m.module_type, m.position, m.rotation_deg, m.mirrored)
+    np.testing.assert_allclose(p.taxel_xy()[12:24], expect)
+
+
+def test_robot_skin_has_two_patches_and_pads_are_not_taxels():
+    lay = load_layout(ROBOT)
+    assert len(lay.patches) >= 2
+    palm = next(p for p in lay.patches if any(m.type == "icub_v2_10pad" for m in p.modules))
+    n_icub = sum(m.type == "icub_v2_10pad" for m in palm.modules)
+    assert palm.valid_mask().sum() <= len(palm.modules) * 12 - 2 * n_icub
+    assert len(palm.taxel_xy()) == palm.valid_mask().sum()
+    assert lay.patch(palm.name) is palm
+
+
+def test_disabled_channels_drop_out(doc):
+    doc["patches"][0]["modules"][0]["disabled_channels"] = [0, 5]
+    p = parse_layout(doc, "x.yaml").patches[0]
+    assert len(p.taxel_xy()) == 70
+    assert p.valid_mask().sum() == 70 and len(p.channel_xy()) == 72
+
+
+def test_hashes_separate_geometry_from_parameters(doc):
+    a = parse_layout(doc).patches[0]
+    d2 = copy.deepcopy(doc)
+    d2["patches"][0]["solver"]["tikhonov"] = 0.05
+    b = parse_layout(d2).patches[0]
+    assert a.layout_hash() == b.layout_hash() and a.parameter_hash() != b.parameter_hash()
+    d3 = copy.deepcopy(doc)
+    d3["patches"][0]["modules"][0]["rotation_deg"] = 61
+    c = parse_layout(d3).patches[0]
+    assert a.layout_hash() != c.layout_hash()
+    d4 = copy.deepcopy(doc)
+    d4["patches"][0]["frame_id"] = "other"
+    assert parse_layout(d4).patches[0].parameter_hash() == a.parameter_hash()
+
+
+def test_defaults_fill_missing_sections():
+    p = parse_layout(
+        {
+            "patches": [
+                {
+                    "name": "p",
+                    "modules": [
+                        {"type": "roboskin12", "board": 1, "triangle": 2, "position": [0, 0]}
+                    ],
+                }
+            ]
+        }
+    ).patches[0]
+    assert p.frame_id == "p" and p.elastomer.poisson == 0.5 and p.solver.method == "nnls_tikhonov"
+    assert p.sensor.area == pytest.approx(np.pi * 4e-6)
+
+
+def _set(doc, path, value):
+    node = doc
+    for k in path[:-1]:
+        node = node[k]
+    if value is _DEL:
+        del node[path[-1]]
+    else:
+        node[path[-1]] = value
+
+
+_DEL = object()
+M = ("patches", 0, "modules")
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "message"),
+    [
+        (
+            (*M, 3, "type"),
+            "foo",
+            "patches[0].modules[3].type: unknown module type 'foo' (known: "
+            "icub_v2_10pad, roboskin12)",
+        ),
+        ((*M, 2, "triangle"), 1, "patches[0].modules[2]: duplicate CAN address board 0 triangle 1"),
+        ((*M, 2, "position"), [0.0003, 0.0], "patches[0].modules[4]: overlapping taxels"),
+        ((*M, 0, "board"), 16, "patches[0].modules[0].board: must be <= 15, got 16"),
+        ((*M, 0, "position"), [0.0], "patches[0].modules[0].position: expected [x, y]"),
+        ((*M, 0, "colour"), "red", "patches[0].modules[0].colour: unknown key"),
+        ((*M, 0, "disabled_channels"), [12], "disabled_channels: expected a list of channels"),
+        (
+            ("patches", 0, "elastomer", "thickness"),
+            -0.002,
+            "patches[0].elastomer.thickness: must be > 0.0, got -0.002",
+        ),
+        (
+            ("patches", 0, "elastomer", "poisson"),
+            0.51,
+            "patches[0].elastomer.poisson: must be <= 0.5, got 0.51",
+        ),
+        (("patches", 0, "elastomer", "young"), "soft", "elastomer.young: expected a number"),
+        (("patches", 0, "elastomer", "young"), float("nan"), "must be finite"),
+        (("patches", 0, "sensor", "area"), 1e-5, "sensor.area: give either taxel_radius or area"),
+        (("patches", 0, "grid", "mask"), "circle", "grid.mask: unknown value 'circle'"),
+        (("patches", 0, "model", "kind"), "fem", "model.kind: unknown value 'fem'"),
+        (("patches", 0, "solver", "method"), "magic", "solver.method: unknown value 'magic'"),
+        (("patches", 0, "name"), "has space", "patches[0].name: expected a non-empty name"),
+        (("patches", 0, "modules"), [], "patches[0].modules: expected a non-empty list"),
+        (("patches", 0, "extra"), 1, "patches[0].extra: unknown key"),
+        (("schema_version",), 2, "schema_version: unsupported version 2"),
+        (("patches",), _DEL, "patches: expected a non-empty list"),
+    ],
+)
+def test_errors_name_file_key_and_problem(doc, tmp_path, path, value, message):
+    _set(doc, path, value)
+    f = tmp_path / "x.yaml"
+    f.write_text(yaml.safe_dump(doc))
+    with pytest.raises(LayoutError) as exc:
+        load_layout(f)
+    assert str(exc.value).startswith(f"{f}: ")
+    assert message in str(exc.value)
+
+
+def test_boussinesq_psi_checked(doc):
+    doc["patches"][0]["model"] = {"kind": "boussinesq", "psi": "wrong"}
+    with pytest.raises(LayoutError, match=r"model\.psi: expected 'exact' or a positive number"):
+        parse_layout(doc, "x.yaml")
+    doc["patches"][0]["model"]["psi"] = 0.25
+    assert parse_layout(doc).patches[0].model.psi == 0.25
+
+
+def test_duplicate_address_across_patches_and_names(doc):
+    second = copy.deepcopy(doc["patches"][0])
+    second["name"] = "other"
+    doc["patches"].append(second)
+    with pytest.raises(LayoutError, match=r"patches\[1\]\.modules\[0\]: duplicate CAN address"):
+        parse_layout(doc, "x.yaml")
+    second["name"] = "hexagon"
+    with pytest.raises(LayoutError, match=r"patches\[1\]\.name: duplicate patch name"):
+        parse_layout(doc, "x.yaml")
+
+
+def test_unreadable_and_invalid_yaml(tmp_path):
+    with pytest.raises(LayoutError, match="cannot read"):
+        load_layout(tmp_path / "missing.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("patches: [\n  - {name: x\n")
+    with pytest.raises(LayoutError, match=r"bad\.yaml: invalid YAML"):
+        load_layout(bad)
+    top = tmp_path / "list.yaml"
+    top.write_text("- 1\n")
+    with pytest.raises(LayoutError, match="expected a mapping"):
+        load_layout(top)
