@@ -26,7 +26,8 @@ from tactile_contact.elastic.boussinesq import (
 )
 from tactile_contact.elastic.love import (
     _corner_uz_effective,
-    _edge_correction,
+    edge_atan,
+    edge_g,
     effective_far_plan,
     effective_far_radius,
     gauss_effective,
@@ -130,16 +131,25 @@ def love_matrix(
             # Edge terms exist only where the point lies in a cell's x- or y-range.
             kk, nn = np.nonzero((np.abs(dx) <= edge_a) | (np.abs(dy) <= edge_b))
             if kk.size:
-                # the same corner offsets as in ec, so that the signs match bit for bit
+                # the same corner offsets as in ec, so that the signs match bit for bit; the
+                # smooth edge function is evaluated once per (point, distinct edge coordinate)
                 xk, yk = px[kk, 0], py[kk, 0]
-                blk[kk, nn] += _edge_correction(
-                    ux[ix[0, nn]] - xk,
-                    ux[ix[1, nn]] - xk,
-                    uy[iy[0, nn]] - yk,
-                    uy[iy[1, nn]] - yk,
-                    h,
-                    nu,
-                )
+                ixp, ixm, iyp, iym = ix[0, nn], ix[1, nn], iy[0, nn], iy[1, nn]
+                xp, xm, yp, ym = ux[ixp] - xk, ux[ixm] - xk, uy[iyp] - yk, uy[iym] - yk
+                cxs = np.sign(xp) - np.sign(xm)
+                cys = np.sign(yp) - np.sign(ym)
+                gx = edge_g(ux[None, :] - px, h)
+                gy = edge_g(uy[None, :] - py, h)
+                corr = cxs * (gy[kk, iyp] - gy[kk, iym]) + cys * (gx[kk, ixp] - gx[kk, ixm])
+                corr *= 2.0 * (1.0 - nu)
+                if nu != 0.5:
+                    k = (1.0 - 2.0 * nu) * h
+                    corr += k * (
+                        cxs * edge_atan(yp, ym, h)
+                        + cys * edge_atan(xp, xm, h)
+                        - cxs * cys * 0.5 * np.pi
+                    )
+                blk[kk, nn] += corr
             r2 = dx * dx
             r2 += dy * dy
             kk, nn = np.nonzero(r2 >= far_r2)

@@ -123,25 +123,33 @@ def _corner_uz_effective(xc: Array, yc: Array, h: float, nu: float) -> Array:
     return 2.0 * (1.0 - nu) * p + (1.0 - 2.0 * nu) * h * np.sign(xc) * np.sign(yc) * v
 
 
-def _edge_g_diff(t1: Array, t2: Array, h: float, nu: float) -> Array:
-    """G(t1) − G(t2), G(t) = 2(1−ν)·t·asinh(h²/(2|t|q_t)) + (1−2ν)·h·atan(t/h)."""
+def edge_g(t: Array, h: float) -> Array:
+    """t·asinh(h²/(2|t|q_t)) = ½·t·log1p(h²/t²), q_t = √(t²+h²); 0 at t = 0 (clamped)."""
+    with np.errstate(divide="ignore", over="ignore"):
+        return 0.5 * t * np.log1p(np.minimum(h * h / (t * t), _HUGE))
 
-    def g(t):
-        return t * np.arcsinh(_ratio(np.full_like(t, h * h), 2.0 * np.abs(t) * np.hypot(t, h)))
 
-    out = 2.0 * (1.0 - nu) * (g(t1) - g(t2))
-    if nu != 0.5:
-        out = out + (1.0 - 2.0 * nu) * h * np.arctan2(h * (t1 - t2), h * h + t1 * t2)
-    return out
+def edge_atan(t1: Array, t2: Array, h: float) -> Array:
+    """atan(t1/h) − atan(t2/h) without cancellation when t1 ≈ t2 ≫ h."""
+    return np.arctan2(h * (t1 - t2), h * h + t1 * t2)
 
 
 def _edge_correction(xp: Array, xm: Array, yp: Array, ym: Array, h: float, nu: float) -> Array:
     """What the canonical corner sum leaves out; non-zero only when the field point lies in the
-    cell's x-range or y-range (xp = a − x, xm = −a − x, yp, ym likewise)."""
+    cell's x-range or y-range (xp = a − x, xm = −a − x, yp, ym likewise):
+    c_x·[G(Y+) − G(Y−)] + c_y·[G(X+) − G(X−)] − c_x·c_y·G(∞), c_x = sgn(X+) − sgn(X−),
+    G(t) = 2(1−ν)·edge_g(t) + (1−2ν)·h·atan(t/h), G(∞) = (1−2ν)·h·π/2."""
     cx = np.sign(xp) - np.sign(xm)
     cy = np.sign(yp) - np.sign(ym)
-    out = cx * _edge_g_diff(yp, ym, h, nu) + cy * _edge_g_diff(xp, xm, h, nu)
-    return out - cx * cy * (1.0 - 2.0 * nu) * h * 0.5 * np.pi
+    out = (
+        2.0
+        * (1.0 - nu)
+        * (cx * (edge_g(yp, h) - edge_g(ym, h)) + cy * (edge_g(xp, h) - edge_g(xm, h)))
+    )
+    if nu != 0.5:
+        k = (1.0 - 2.0 * nu) * h
+        out += k * (cx * edge_atan(yp, ym, h) + cy * edge_atan(xp, xm, h) - cx * cy * 0.5 * np.pi)
+    return out
 
 
 def corner_sum_effective(x: Array, y: Array, a: Array, b: Array, h: float, nu: float) -> Array:
