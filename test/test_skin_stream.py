@@ -66,6 +66,17 @@ def test_one_message_per_period_with_delta_c_after_calibration() -> None:
     assert f.taxel_ids[:13] == [*range(12), 0x10]
 
 
+def test_stamp_is_the_newest_reading_of_the_message_even_after_a_clock_step() -> None:
+    s = make_stream()
+    (a,) = feed_period(s, 0)
+    out = []
+    for tri in range(M):  # the receive clock stepped back by 50 s
+        for m in codec.reading_messages(0, tri, [240] * 12, timestamp=50.0 + tri * 1e-4):
+            out += s.feed(m, now=P)
+    assert [f.stamp for f in out] == [pytest.approx(50.0005)]
+    assert a.stamp == pytest.approx(100.0005)
+
+
 def test_max_wait_publishes_with_stale_modules_and_loses_nothing() -> None:
     s = make_stream()
     feed_period(s, 0)

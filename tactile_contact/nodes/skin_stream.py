@@ -201,7 +201,7 @@ class _PatchState:
     live_checked: float = -math.inf  # monotonic [s]
     first_pending: float = math.inf  # monotonic time of the first pending reading [s]
     oldest_pending_stamp: float = math.inf  # receive time of the oldest pending reading [s]
-    newest_stamp: float = -math.inf
+    newest_stamp: float = -math.inf  # receive time of the newest pending reading [s]
     published: int = 0
     stale_publications: int = 0
     last_bad: dict[int, list[str]] = field(default_factory=dict)
@@ -377,13 +377,14 @@ class SkinStream:
         st.n_fresh = 0
         st.first_pending = math.inf
         st.oldest_pending_stamp = math.inf
+        stamp, st.newest_stamp = st.newest_stamp, -math.inf  # per message: a clock step heals
         st.published += 1
         if not fresh.all():
             st.stale_publications += 1
         return PatchFrame(
             patch=st.layout.name,
             frame_id=st.layout.frame_id,
-            stamp=st.newest_stamp,
+            stamp=stamp,
             taxel_ids=st.taxel_ids,
             delta_c=res.delta_c.astype(np.float32),
             raw=st.raw.tobytes(),
