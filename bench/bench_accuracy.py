@@ -120,15 +120,15 @@ def stats(rows) -> str:
 
 
 VARIANTS = {
-    "default (nnls_tikhonov 2-pass, λ 0.01, 2 mm, disc avg)": {},
+    "default (nnls_tikhonov 2-pass, λ 0.1, 2 mm, disc avg)": {},
+    "nnls λ 0.01 2-pass": {"solver": {"tikhonov": 0.01}},
     "paper pinv (rcond 1e-3)": {"solver": {"method": "pinv"}},
-    "tikhonov identity λ 0.01 (free only)": {"solver": {"method": "tikhonov"}},
-    "nnls λ 0.01 one pass (seed_fraction 0)": {
+    "tikhonov identity λ 0.1 (free only)": {"solver": {"method": "tikhonov"}},
+    "nnls λ 0.1 one pass (seed_fraction 0)": {
         "solver": {"seed_fraction": 0.0, "support_radius": 0.1}
     },
-    "nnls λ 0.1 2-pass": {"solver": {"tikhonov": 0.1}},
     "nnls λ 0.001 2-pass": {"solver": {"tikhonov": 0.001}},
-    "nnls laplacian λ 0.01 2-pass": {"solver": {"regulariser": "laplacian"}},
+    "nnls laplacian λ 0.1 2-pass": {"solver": {"regulariser": "laplacian"}},
     "nnls 2-pass, point taxels (no disc avg)": {"model": {"taxel_average": False}},
     "nnls 2-pass, 3 mm cells": {"grid": {"traction_cell": 0.003}},
     "nnls 2-pass, 4 mm cells": {"grid": {"traction_cell": 0.004}},

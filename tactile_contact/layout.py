@@ -154,7 +154,7 @@ class SolverSpec:
 
     method: str = "nnls_tikhonov"
     regulariser: str = "identity"
-    tikhonov: float = 0.01
+    tikhonov: float = 0.1
     rcond: float = 1.0e-3
     tsvd_rank: int | None = None
     noise: float = 6.0e-6
@@ -460,7 +460,7 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
     solver = SolverSpec(
         method=c.choice(so, "method", sop, "nnls_tikhonov", SOLVER_METHODS),
         regulariser=c.choice(so, "regulariser", sop, "identity", REGULARISERS),
-        tikhonov=c.number(so, "tikhonov", sop, 0.01, lo=0.0, hi=10.0),
+        tikhonov=c.number(so, "tikhonov", sop, 0.1, lo=0.0, hi=10.0),
         rcond=c.number(so, "rcond", sop, 1e-3, lo=0.0, lo_open=True, hi=1.0),
         tsvd_rank=c.number(so, "tsvd_rank", sop, None, lo=1, integer=True),
         noise=c.number(so, "noise", sop, 6.0e-6, lo=0.0, hi=1e-3),

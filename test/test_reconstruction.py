@@ -1,0 +1,198 @@
+"""Reconstruction core: the bundle's matrices are the elastic kernels, contact-free frames are
+not solved, the outputs are consistent with each other and with the forward model."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from tactile_contact.build import build_patch
+from tactile_contact.bundle import BundleStaleError, save_bundle
+from tactile_contact.elastic import love_matrix
+from tactile_contact.forward import ForwardModel
+from tactile_contact.grids import disc_quadrature
+from tactile_contact.indenters import HertzSphere
+from tactile_contact.layout import load_layout, parse_layout
+from tactile_contact.reconstruction import ContactResult, Reconstructor
+from tactile_contact.sensor import compression_to_delta_c
+
+ROOT = Path(__file__).resolve().parents[1]
+DOC = yaml.safe_load((ROOT / "config" / "hexagon_patch.yaml").read_text())
+
+
+def _bundle(tmp_path_factory, name: str, **sections) -> tuple[Path, object]:
+    doc = copy.deepcopy(DOC)
+    for sec, kv in sections.items():
+        doc["patches"][0].setdefault(sec, {}).update(kv)
+    patch = parse_layout(doc).patches[0]
+    m, a = build_patch(patch)
+    return save_bundle(tmp_path_factory.mktemp(name) / patch.name, m, a), patch
+
+
+@pytest.fixture(scope="module")
+def default(tmp_path_factory):
+    path, patch = _bundle(tmp_path_factory, "default")
+    return Reconstructor.from_bundle(path, patch), patch
+
+
+@pytest.fixture(scope="module")
+def point_pinv(tmp_path_factory):
+    path, patch = _bundle(
+        tmp_path_factory, "pinv", model={"taxel_average": False}, solver={"method": "pinv"}
+    )
+    return Reconstructor.from_bundle(path), patch
+
+
+def test_public_import():
+    import tactile_contact
+
+    assert tactile_contact.Reconstructor is Reconstructor
+    assert tactile_contact.ContactResult is ContactResult
+
+
+def test_forward_matrix_is_the_love_kernel_at_the_taxels(point_pinv):
+    r, patch = point_pinv
+    g = r.traction_grid
+    ref = love_matrix(patch.taxel_xy(), g.centers(), g.half_sizes(), 2e-3, 2.1e5, 0.5)
+    np.testing.assert_allclose(r.forward, ref, rtol=1e-12, atol=0)
+    assert r.forward.shape == (72, g.n_cells)
+
+
+def test_forward_matrix_averages_the_kernel_over_the_electrode(default):
+    r, patch = default
+    g = r.traction_grid
+    pts, w = disc_quadrature(2e-3, 12, 32)  # finer than the build's 8 × 24 rule
+    k = patch.taxel_xy()[:6]
+    ref = love_matrix(
+        (k[:, None] + pts[None]).reshape(-1, 2), g.centers(), g.half_sizes(), 2e-3, 2.1e5, 0.5
+    ).reshape(6, len(w), -1)
+    ref = np.einsum("kqn,q->kn", ref, w)
+    scale = np.abs(ref).max()
+    np.testing.assert_allclose(r.forward[:6], ref, atol=1e-2 * scale)
+
+
+def test_params_and_geometry(default):
+    r, patch = default
+    assert r.params["thickness"] == 2e-3 and r.params["young"] == 2.1e5
+    assert r.params["poisson"] == 0.5 and r.params["taxel_radius"] == 2e-3
+    with pytest.raises(TypeError):
+        r.params["young"] = 1.0  # read-only
+    np.testing.assert_array_equal(r.taxel_xy, patch.taxel_xy())
+    np.testing.assert_array_equal(r.taxel_ids, patch.taxel_ids())
+    assert r.patch == "hexagon" and r.frame_id == "skin_hexagon"
+
+
+def test_zero_and_subnoise_input_is_not_solved(default):
+    r, _ = default
+    for d in (np.zeros(72), np.full(72, 0.5 * r.noise) * np.sign(np.arange(72) % 2 - 0.5)):
+        res = r.solve_deflection(d)
+        assert res.solver == "none" and not res.in_contact and res.solve_time == 0.0
+        assert res.total_force == 0.0 and res.cop == (0.0, 0.0) and res.taxels_active == 0
+        assert res.traction.shape == r.traction_grid.shape and not res.traction.any()
+        assert res.deflection.shape == r.deflection_grid.shape and not res.deflection.any()
+    res = r.solve(np.zeros(72), want_deflection=False, want_traction=False)
+    assert res.traction is None and res.deflection is None
+
+
+def test_negative_only_readings_are_contact(default):
+    # DESIGN.md: a small punch between three taxels reads about −28 µm at each, nothing positive.
+    r, _ = default
+    d = np.zeros(72)
+    d[[48 + 3, 48 + 7, 48 + 11]] = -28e-6
+    res = r.solve_deflection(d)
+    assert res.in_contact and res.solver == "nnls" and res.total_force > 0
+    centroid = r.taxel_xy[[51, 55, 59]].mean(axis=0)
+    assert np.hypot(*(np.asarray(res.cop) - centroid)) < 1.5e-3
+
+
+@pytest.fixture(scope="module")
+def indentation(default):
+    r, _ = default
+    fm = ForwardModel(r.taxel_xy, 2e-3, 2.1e5, 0.5, taxel_radius=2e-3)
+    c = r.taxel_xy[51]
+    return fm.compression(HertzSphere(6e-3), 1.5, c), c
+
+
+def test_noise_free_indentation(default, indentation):
+    r, _ = default
+    delta, c = indentation
+    res = r.solve_deflection(delta)
+    assert res.success and res.solver == "nnls" and res.in_contact
+    assert res.total_force == pytest.approx(1.5, rel=0.15)
+    assert np.hypot(*(np.asarray(res.cop) - c)) < 0.5e-3
+    assert res.traction.min() >= 0 and res.peak_pressure == pytest.approx(res.traction.max())
+    assert res.total_force == pytest.approx(res.traction.sum() * r.traction_grid.cell_area)
+    # the model explains the data: residual below 10 % of the reading
+    assert res.residual_norm < 0.1 * np.linalg.norm(delta)
+    # the deflection grid is the forward model of the traction at the grid's cells
+    q = r.traction_grid.to_vector(res.traction)
+    dg = r.deflection_grid
+    ref = (
+        love_matrix(
+            dg.centers(), r.traction_grid.centers(), r.traction_grid.half_sizes(), 2e-3, 2.1e5, 0.5
+        )
+        @ q
+    )
+    np.testing.assert_allclose(
+        dg.to_vector(res.deflection), ref, rtol=1e-4, atol=1e-5 * np.abs(ref).max()
+    )
+
+
+def test_delta_c_and_delta_entry_points_agree(default, indentation):
+    r, _ = default
+    delta, _ = indentation
+    dc = compression_to_delta_c(delta, 2e-3, 4.37, np.pi * 4e-6)
+    a, b = r.solve(dc), r.solve_deflection(delta)
+    np.testing.assert_allclose(a.traction, b.traction, rtol=1e-6, atol=1e-6 * b.peak_pressure)
+    assert a.total_force == pytest.approx(b.total_force, rel=1e-6)
+
+
+def test_invalid_taxels_are_ignored(default, indentation):
+    r, _ = default
+    delta, _ = indentation
+    valid = np.ones(72, bool)
+    valid[10] = False
+    a = r.solve_deflection(np.where(valid, delta, 1.0), valid=valid)
+    b = r.solve_deflection(np.where(valid, delta, 0.0), valid=valid)
+    np.testing.assert_array_equal(a.traction, b.traction)
+    c = r.solve_deflection(np.where(valid, delta, np.nan))
+    np.testing.assert_allclose(c.traction, b.traction, rtol=1e-6, atol=1e-6 * b.peak_pressure)
+    # a capacitance at or below −C0 is no compression at all: excluded, not an exception
+    dc = compression_to_delta_c(delta, 2e-3, 4.37, np.pi * 4e-6)
+    dc[10] = -1.0
+    d = r.solve(dc)
+    assert d.total_force == pytest.approx(b.total_force, rel=1e-6)
+
+
+def test_pinv_path_is_the_precomputed_product(point_pinv, indentation):
+    r, _ = point_pinv
+    delta, _ = indentation
+    res = r.solve_deflection(delta)
+    assert res.solver == "pinv" and res.iterations == 0
+    q = np.linalg.pinv(r.forward, rcond=1e-3) @ delta
+    np.testing.assert_allclose(
+        r.traction_grid.to_vector(res.traction), q, rtol=1e-4, atol=1e-5 * np.abs(q).max()
+    )
+    # DESIGN.md §2: the plain pseudo-inverse loses almost all the net force
+    assert abs(res.total_force) < 0.5 * 1.5
+
+
+def test_shape_errors(default):
+    r, _ = default
+    with pytest.raises(ValueError, match=r"delta_c must have shape \(72,\)"):
+        r.solve(np.zeros(71))
+    with pytest.raises(ValueError, match=r"valid must have shape \(72,\)"):
+        r.solve(np.zeros(72), valid=np.ones(3, bool))
+
+
+def test_expected_layout_mismatch_is_refused(tmp_path_factory):
+    path, _ = _bundle(tmp_path_factory, "stale")
+    doc = copy.deepcopy(DOC)
+    doc["patches"][0]["solver"]["tikhonov"] = 0.5
+    with pytest.raises(BundleStaleError):
+        Reconstructor.from_bundle(path, parse_layout(doc).patches[0])
+    Reconstructor.from_bundle(path, load_layout(ROOT / "config" / "hexagon_patch.yaml").patches[0])
