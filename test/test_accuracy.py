@@ -1,0 +1,137 @@
+"""Synthetic indentation test of the default reconstruction (issue 7, docs/reconstruction.md).
+
+Ground truth from the independent fine forward simulation (exact cell-averaged Hertz and
+flat-punch pressure on 0.25 mm cells, mean over each 2 mm electrode, exact capacitance of the
+deformed plate), then Gaussian noise of 0.15 8-bit counts RMS and 8-bit quantisation (one count
+≈ 10 µm of compression). The paper's indenters (12 mm and 6 mm half-spheres, 12 mm and 3 mm
+flat cylinders) over a taxel, between two and between three taxels, at 0.2, 1 and 3 N.
+bench/bench_accuracy.py runs the full set (5 forces, 6 positions) and the variants.
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from tactile_contact.build import build_patch
+from tactile_contact.bundle import save_bundle
+from tactile_contact.forward import ForwardModel
+from tactile_contact.indenters import FlatPunch, HertzSphere
+from tactile_contact.layout import parse_layout
+from tactile_contact.reconstruction import Reconstructor
+from tactile_contact.sensor import value_count_farad
+
+ROOT = Path(__file__).resolve().parents[1]
+DOC = yaml.safe_load((ROOT / "config" / "hexagon_patch.yaml").read_text())
+INDENTERS = {
+    "sphere 12": HertzSphere(6e-3),
+    "sphere 6": HertzSphere(3e-3),
+    "cylinder 12": FlatPunch(6e-3),
+    "cylinder 3": FlatPunch(1.5e-3),
+}
+FORCES = (0.2, 1.0, 3.0)
+NOISE_COUNTS = 0.15
+
+pytestmark = pytest.mark.slow
+
+
+def _recon(tmp_path_factory, **solver) -> Reconstructor:
+    doc = copy.deepcopy(DOC)
+    doc["patches"][0]["solver"].update(solver)
+    patch = parse_layout(doc).patches[0]
+    m, a = build_patch(patch)
+    name = "-".join(f"{k}{v}" for k, v in solver.items()) or "default"
+    return Reconstructor.from_bundle(save_bundle(tmp_path_factory.mktemp(name) / "p", m, a))
+
+
+@pytest.fixture(scope="module")
+def cases(tmp_path_factory):
+    recon = _recon(tmp_path_factory)
+    p = recon.params
+    xy = recon.taxel_xy
+    m = xy[48:60]
+    positions = {"over": m[3], "two": (m[7] + m[11]) / 2, "three": (m[3] + m[7] + m[11]) / 3}
+    # Taxels beyond 20 mm of every indenter read < 1 µm (0.1 count) at 3 N: simulate only the
+    # near ones (time), the others read exactly no change.
+    near = np.hypot(*(xy - m.mean(axis=0)).T) < 0.02 + 0.008
+    fm = ForwardModel(
+        xy[near],
+        p["thickness"],
+        p["young"],
+        p["poisson"],
+        fine_cell=2.5e-4,
+        taxel_radius=p["taxel_radius"],
+    )
+    lsb = value_count_farad(p["farad_per_count"], p["shift"])
+    rng = np.random.default_rng(7)
+    out = []
+    for (iname, ind), (pname, c), f in itertools.product(
+        INDENTERS.items(), positions.items(), FORCES
+    ):
+        dc = np.zeros(len(xy))
+        dc[near] = fm.delta_c(ind, f, c, p["epsilon_r"])
+        dcq = np.rint((dc + rng.normal(0, NOISE_COUNTS * lsb, dc.shape)) / lsb) * lsb
+        out.append((iname, pname, f, c, dcq))
+    return recon, out
+
+
+def _errors(recon, cases):
+    rows = []
+    for iname, pname, f, c, dcq in cases:
+        res = recon.solve(dcq)
+        cop = np.hypot(*(np.asarray(res.cop) - c)) * 1e3 if res.in_contact else np.inf
+        rows.append((iname, pname, f, abs(res.total_force / f - 1) * 100, cop))
+    return rows
+
+
+@pytest.fixture(scope="module")
+def default_rows(cases):
+    recon, cs = cases
+    return _errors(recon, cs)
+
+
+def test_quantisation_is_realistic(cases):
+    # One count is about 10 µm; the between-three readings are only a few counts.
+    recon, cs = cases
+    lsb = value_count_farad(recon.params["farad_per_count"], recon.params["shift"])
+    delta_one = recon.compression(np.array([lsb]))[0]
+    assert 9e-6 < delta_one < 12e-6
+    counts = np.rint(cs[0][4] / lsb)
+    assert np.allclose(cs[0][4] / lsb, counts)
+
+
+def test_centre_of_pressure_median_within_1mm(default_rows):
+    cop = np.array([r[4] for r in default_rows])
+    assert np.median(cop) <= 1.0
+
+
+def test_force_at_3N_and_overall_regression_bounds(default_rows):
+    # Measured (docs/reconstruction.md); these bounds guard against regressions.
+    err = np.array([r[3] for r in default_rows])
+    f3 = np.array([r[3] for r in default_rows if r[2] == 3.0])
+    assert np.median(f3) <= 40.0
+    assert np.median(err) <= 60.0
+    over = [r[3] for r in default_rows if r[1] == "over" and r[2] >= 1.0]
+    assert np.median(over) <= 45.0
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="the issue's 10 % median force target is not met: with "
+    "8-bit counts the force lives in 1-2 count readings (docs/reconstruction.md)",
+)
+def test_force_median_within_10_percent(default_rows):
+    assert np.median([r[3] for r in default_rows]) <= 10.0
+
+
+def test_default_beats_the_papers_pinv_on_force(tmp_path_factory, cases, default_rows):
+    _, cs = cases
+    pinv = _errors(_recon(tmp_path_factory, method="pinv"), cs)
+    ours = np.median([r[3] for r in default_rows if r[2] >= 1.0])
+    theirs = np.median([r[3] for r in pinv if r[2] >= 1.0])
+    assert ours < 0.6 * theirs
