@@ -47,7 +47,8 @@ def _bringup(args: argparse.Namespace) -> int:
             if args.record:
                 node = rclpy.create_node("tactile_contact_recorder", context=context)
                 executor.add_node(node)
-                recorder = BagRecorder(node, args.record, pipeline_topics(config.layout_path))
+                topics = pipeline_topics(config.layout_path, tuple(args.record_topics))
+                recorder = BagRecorder(node, args.record, topics, storage=args.storage)
             deadline = time.monotonic() + args.duration if args.duration > 0 else None
             while context.ok() and (deadline is None or time.monotonic() < deadline):
                 executor.spin_once(timeout_sec=0.1)
@@ -95,6 +96,8 @@ def _replay(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from tactile_contact.nodes.topics import STREAMS
+
     parser = argparse.ArgumentParser(prog="tactile-contact", description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
     b = sub.add_parser("bringup", help="simulator/driver/reconstruction in one process")
@@ -105,6 +108,14 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--scenario", default="sweep", choices=["sweep", "press", "idle"])
     b.add_argument("--duration", type=float, default=0.0, help="seconds to run (0: until ^C)")
     b.add_argument("--record", default="", help="record the pipeline's topics to this bag")
+    b.add_argument(
+        "--record-topics",
+        nargs="+",
+        default=list(STREAMS),
+        choices=list(STREAMS),
+        help="per-patch streams to record",
+    )
+    b.add_argument("--storage", default="mcap", choices=["mcap", "sqlite3"])
     r = sub.add_parser("replay", help="replay a bag's taxel arrays into a reconstruction node")
     r.add_argument("bag")
     r.add_argument("--bundles", default="bundles")
