@@ -148,6 +148,26 @@ def test_love_effective_far_field_relative_accuracy(nu, h, ratio, angle):
     assert love_effective(x, y, A, B, h, E, nu) == pytest.approx(ref, rel=1e-10, abs=0)
 
 
+@pytest.mark.parametrize("nu", [0.5, 0.15])
+@pytest.mark.parametrize("ratio", [4.0, 60.0, 80.0, 150.0])
+@pytest.mark.parametrize("angle", [0.3, 1.2, 4.55])
+def test_love_effective_elongated_cell(nu, ratio, angle):
+    # A 7.8 mm × 0.06 mm strip: its corner sum cancels like r²/(ab), not r²/max(a, b)² (a
+    # quadrature switch based on max(a, b) alone erred by up to 5e-10 on these cases).
+    a, b, h = 3.9e-3, 0.03e-3, 4.8e-3
+    x, y = ratio * a * np.cos(angle), ratio * a * np.sin(angle)
+    c = (1 + nu) / (2 * np.pi * E)
+
+    def keff(dx, dy):
+        r = np.hypot(dx, dy)
+        rho = np.sqrt(r * r + h * h)
+        base = h * h / (r * rho * (r + rho))
+        return c * base * (h * h * (2 * rho + r) / (rho * rho * (r + rho)) - 2 * nu)
+
+    ref = quad_cell(keff, x, y, a, b)
+    assert love_effective(x, y, a, b, h, E, nu) == pytest.approx(ref, rel=1e-10, abs=0)
+
+
 @pytest.mark.parametrize("ratio", [25.0, 100.0, 1e3, 1e5])
 def test_love_uz_and_ux_far_field(ratio):
     x, y = 0.8 * ratio * A, -0.6 * ratio * A

@@ -112,9 +112,8 @@ def love_matrix(
     corner = corner.reshape(keys.shape)
     cx, cy = ux[ukeys // uy.size], uy[ukeys % uy.size]
     scale = (1.0 + nu) / (2.0 * np.pi * e)
-    size = np.maximum(a, b)
     # a slightly smaller radius than the plan's, so that rounding never misses a far pair
-    far_r2 = (effective_far_radius(size, h, nu) * (1.0 - 1e-9)) ** 2
+    far_r2 = (effective_far_radius(a, b, h, nu) * (1.0 - 1e-9)) ** 2
     # In-range tests widened by many roundings of the coordinates: a pair the mask lets through
     # but that lies outside both ranges simply gets a zero correction.
     slack = 64.0 * np.finfo(float).eps * max(np.abs(p).max(), np.abs(c).max(), 1e-300)
@@ -155,7 +154,7 @@ def love_matrix(
             kk, nn = np.nonzero(r2 >= far_r2)
             if kk.size:
                 r = np.sqrt(r2[kk, nn])
-                far, order = effective_far_plan(r, size[nn], h, nu)
+                far, order = effective_far_plan(r, a[nn], b[nn], h, nu)
                 kk, nn, r = kk[far], nn[far], r[far]
                 blk[kk, nn] = gauss_effective(
                     dx[kk, nn], dy[kk, nn], a[nn], b[nn], h, nu, order[far]

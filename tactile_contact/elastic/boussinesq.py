@@ -123,7 +123,7 @@ def boussinesq_block(
 
 def _effective_zz(r: Array, h: float, e: float, nu: float) -> Array:
     """Stable C·[2(1−ν)(1/r − 1/ρ) − h²/ρ³] [m/N]; +inf at r = 0 (no exception)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         rho = np.sqrt(r * r + h * h)
         h2 = h * h
         # 2(1−ν)/(rρ(r+ρ)) − 1/ρ³ = [h²(2ρ+r)/(ρ²(r+ρ)) − 2ν]/(rρ(r+ρ)): the 1/r³ parts

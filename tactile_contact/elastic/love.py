@@ -32,7 +32,7 @@ from tactile_contact.elastic.boussinesq import (
 #: ≲ 1e-12 relative below it; 5-point Gauss errs ≲ (2·30)^(−10) above it).
 FAR_RATIO = 30.0
 FAR_ORDER = 5
-#: The effective u_z(0) − u_z(h) corner sum loses ~ε·R²·M relative (R = r/s, M = how much
+#: The effective u_z(0) − u_z(h) corner sum loses ~ε·R²·M relative (R² = r²/ab, M = how much
 #: smaller the result is than its terms: 1 at ν = 0.5, up to r²/h² as ν → 0, where the 1/r³
 #: parts cancel). Gauss quadrature takes over where R²·M exceeds this budget (≈ 2e-11 error).
 EFFECTIVE_BUDGET = 4.0e4
@@ -189,28 +189,28 @@ def _gauss_cell(kernel: Callable[[Array, Array], Array], x, y, a, b, n: int = FA
     return total * a * b
 
 
-def effective_far_plan(r: Array, size: Array, h: float, nu: float) -> tuple[Array, Array]:
-    """Where the effective-u_z cell integral should use Gauss quadrature, and with how many
-    points per axis: enough for (2R)^(−2n) < 1e-14, R = r/size (see EFFECTIVE_BUDGET)."""
+def effective_far_plan(r: Array, a: Array, b: Array, h: float, nu: float) -> tuple[Array, Array]:
+    """Where the effective-u_z integral over a 2a × 2b cell should use Gauss quadrature (the
+    corner sum loses ~ε·(r²/ab)·M there, see EFFECTIVE_BUDGET), and how many points per axis:
+    enough for (2R)^(−2n) < 1e-14 with R = r/max(a, b)."""
     with np.errstate(all="ignore"):  # overflow to inf is the right limit in each step here
-        ratio = r / size
+        ratio = r / np.maximum(a, b)
         magnify = 1.0 / np.maximum(1.5 * (h / np.maximum(r, 1e-300)) ** 2, 2.0 * nu)
-        far = (ratio >= EFFECTIVE_MIN_RATIO) & (
-            ratio * ratio * np.minimum(magnify, 1e300) > EFFECTIVE_BUDGET
-        )
+        loss = (r / a) * (r / b) * np.minimum(magnify, 1e300)
+        far = (ratio >= EFFECTIVE_MIN_RATIO) & (loss > EFFECTIVE_BUDGET)
         order = np.ceil(7.0 / np.log10(2.0 * np.maximum(ratio, EFFECTIVE_MIN_RATIO)))
     return far, np.clip(order, 3, 18).astype(int)
 
 
-def effective_far_radius(size: Array, h: float, nu: float) -> Array:
-    """The distance [m] from which :func:`effective_far_plan` chooses quadrature, per cell
-    half-size `size` [m]: the smallest r with R ≥ 2.5 and R²·M > EFFECTIVE_BUDGET."""
-    size = np.asarray(size, dtype=float)
-    r = (1.5 * EFFECTIVE_BUDGET * size * size * h * h) ** 0.25  # M = r²/(1.5h²) branch
+def effective_far_radius(a: Array, b: Array, h: float, nu: float) -> Array:
+    """The distance [m] from which :func:`effective_far_plan` chooses quadrature for a cell of
+    half-sizes a, b [m]: the smallest r with r ≥ 2.5·max(a, b) and (r²/ab)·M > EFFECTIVE_BUDGET."""
+    ab = np.asarray(a, dtype=float) * np.asarray(b, dtype=float)
+    r = (1.5 * EFFECTIVE_BUDGET * ab * h * h) ** 0.25  # M = r²/(1.5h²) branch
     if nu > 0.0:
-        r_flat = size * np.sqrt(2.0 * nu * EFFECTIVE_BUDGET)  # M = 1/(2ν) branch
+        r_flat = np.sqrt(2.0 * nu * EFFECTIVE_BUDGET * ab)  # M = 1/(2ν) branch
         r = np.where(r_flat * r_flat >= 0.75 * h * h / nu, r_flat, r)
-    return np.maximum(r, EFFECTIVE_MIN_RATIO * size) * (1.0 + 1e-12)
+    return np.maximum(r, EFFECTIVE_MIN_RATIO * np.maximum(a, b)) * (1.0 + 1e-12)
 
 
 def gauss_effective(x: Array, y: Array, a: Array, b: Array, h: float, nu: float, order: Array):
@@ -345,7 +345,7 @@ def love_effective(
 
     if component == "z":
         out = np.empty(x.shape)
-        far, order = effective_far_plan(np.hypot(x, y), np.maximum(a, b), h, nu)
+        far, order = effective_far_plan(np.hypot(x, y), a, b, h, nu)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             near = ~far
             out[near] = corner_sum_effective(x[near], y[near], a[near], b[near], h, nu)
