@@ -127,6 +127,7 @@ class Harness:
             return pub.get_subscription_count() > 0 and self.sub.get_publisher_count() > 0
 
         assert self.spin_until(matched, 10.0), "no match"
+        self.spin_for(0.1)  # (discovery completes on both sides)
 
     def spin_until(self, done: Any, timeout_s: float) -> bool:
         from test.rosutil import spin_until
@@ -252,7 +253,8 @@ def test_replays_candump_log(harness_factory: Any, tmp_path: Path) -> None:
     h.wait_matched()
     assert h.driver.trigger_activate() == TransitionCallbackReturn.SUCCESS
     ok = h.spin_until(lambda: len(h.taxels) >= len(truths), 10.0)
-    assert ok, (len(h.taxels), h.diag() if h.diags else None)
+    missing = sorted({round(t.t / PERIOD_S) for t in truths} - {stamp_index(m) for m in h.taxels})
+    assert ok, (missing, h.driver._stream._patches[0].published, [stamp_index(m) for m in h.taxels])
     elapsed = time.monotonic() - t0
     assert elapsed >= 0.7 * len(truths) * PERIOD_S, "replay is paced by the log's timestamps"
     got = {stamp_index(m): bytes(m.raw) for m in h.taxels}

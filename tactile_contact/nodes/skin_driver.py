@@ -261,6 +261,10 @@ class SkinDriver(LifecycleNode):
             return None
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        # Publishers first: the receive thread may publish its first message at once.
+        result = super().on_activate(state)
+        if result != SUCCESS:
+            return result
         try:
             if self._params["send_config"]:
                 self._send_config()
@@ -270,9 +274,10 @@ class SkinDriver(LifecycleNode):
             self._thread.start()
         except Exception as exc:
             self.get_logger().error(f"activate failed: {type(exc).__name__}: {exc}")
+            super().on_deactivate(state)
             return FAILURE
         self.get_logger().info("active: publishing")
-        return super().on_activate(state)
+        return SUCCESS
 
     def _drain(self) -> None:
         """Drop frames queued while inactive (old data must not come out with old stamps)."""
