@@ -588,7 +588,7 @@ def test_lifecycle_cycle_stops_and_restarts_publishing(harness_factory: Any) -> 
     from rclpy.lifecycle import TransitionCallbackReturn
 
     ok = TransitionCallbackReturn.SUCCESS
-    h = harness_factory(autostart=False)
+    h = harness_factory(autostart=False, stamp_source="now")
     d = h.driver
     assert d._state_machine.current_state[1] == "unconfigured"
     assert d.trigger_configure() == ok
@@ -596,6 +596,8 @@ def test_lifecycle_cycle_stops_and_restarts_publishing(harness_factory: Any) -> 
     assert d.trigger_activate() == ok
     h.send(p.messages for p in simulator().periods(None, 0.3))
     assert h.spin_until(lambda: len(h.taxels) >= 10, 5.0)
+    stamp = h.taxels[-1].header.stamp.sec + h.taxels[-1].header.stamp.nanosec * 1e-9
+    assert abs(stamp - time.time()) < 5.0, "stamp_source now: node clock, not the frames' 0..1 s"
     assert d.trigger_deactivate() == ok
     h.spin_until(lambda: not h.sending(), 5.0)
     n = len(h.taxels)
