@@ -114,6 +114,8 @@ def love_matrix(
     scale = (1.0 + nu) / (2.0 * np.pi * e)
     # a slightly smaller radius than the plan's, so that rounding never misses a far pair
     far_r2 = (effective_far_radius(a, b, h, nu) * (1.0 - 1e-9)) ** 2
+    both = np.concatenate([p, c])
+    may_be_far = np.sum(np.ptp(both, axis=0) ** 2) >= far_r2.min()  # else skip the far test
     # In-range tests widened by many roundings of the coordinates: a pair the mask lets through
     # but that lies outside both ranges simply gets a zero correction.
     slack = 64.0 * np.finfo(float).eps * max(np.abs(p).max(), np.abs(c).max(), 1e-300)
@@ -149,16 +151,17 @@ def love_matrix(
                         - cxs * cys * 0.5 * np.pi
                     )
                 blk[kk, nn] += corr
-            r2 = dx * dx
-            r2 += dy * dy
-            kk, nn = np.nonzero(r2 >= far_r2)
-            if kk.size:
-                r = np.sqrt(r2[kk, nn])
-                far, order = effective_far_plan(r, a[nn], b[nn], h, nu)
-                kk, nn, r = kk[far], nn[far], r[far]
-                blk[kk, nn] = gauss_effective(
-                    dx[kk, nn], dy[kk, nn], a[nn], b[nn], h, nu, order[far]
-                )
+            if may_be_far:
+                r2 = dx * dx
+                r2 += dy * dy
+                kk, nn = np.nonzero(r2 >= far_r2)
+                if kk.size:
+                    r = np.sqrt(r2[kk, nn])
+                    far, order = effective_far_plan(r, a[nn], b[nn], h, nu)
+                    kk, nn = kk[far], nn[far]
+                    blk[kk, nn] = gauss_effective(
+                        dx[kk, nn], dy[kk, nn], a[nn], b[nn], h, nu, order[far]
+                    )
             out[rows] = scale * blk
     return out
 
