@@ -9,10 +9,12 @@ truth goes out as ``<patch>/contact_truth`` (tactile_contact/ContactState, senso
 total force [N], centre of pressure [m] in the patch frame, contact area [m²] and peak
 pressure [Pa] of the indenter, stamped with the time of the period's last frame.
 
-Scenarios (``scenario``), repeated every ``cycle_s`` when ``loop``:
+Scenarios (``scenario``), after ``start_delay_s`` without contact (so that a driver learns its
+baselines unloaded), repeated every ``cycle_s`` when ``loop``:
 
-- ``press``: ramp to ``force_n`` at the patch centre, hold, release;
-- ``sweep``: ramp at one side of the patch, slide along x across it while holding, release;
+- ``press``: ramp to ``force_n`` on the taxel nearest the patch centre, hold, release;
+- ``sweep``: ramp at one side of the patch, slide along x across it (through that taxel)
+  while holding, release;
 - ``idle``: no contact (noise and drift only).
 """
 
@@ -56,6 +58,8 @@ PARAMETERS: tuple[tuple[str, Any, str, dict[str, Any]], ...] = (
     ("cycle_s", 4.0, "scenario length (ramp 0.5 s, hold, release 0.5 s, rest 0.5 s)",
      {"unit": "s", "float_range": (2.0, 3600.0)}),
     ("loop", True, "repeat the scenario every cycle_s", {}),
+    ("start_delay_s", 2.0, "no contact before the first cycle (lets a driver calibrate)",
+     {"unit": "s", "float_range": (0.0, 3600.0)}),
     ("period_ms", 50, "module reading period", {"unit": "ms", "int_range": (1, 255)}),
     ("seed", 0, "random seed (noise, rest offsets)", {"int_range": (0, 2**31 - 1)}),
     ("noise_cdc", 2.0, "converter noise (standard deviation)",
@@ -70,13 +74,16 @@ PARAMETERS: tuple[tuple[str, Any, str, dict[str, Any]], ...] = (
 
 
 class _Looped:
-    """An indentation repeated every ``cycle_s`` (duck-types ``Indentation`` for the library)."""
+    """An indentation after ``delay_s``, repeated every ``cycle_s`` (duck-types Indentation)."""
 
-    def __init__(self, indentation: Indentation, cycle_s: float, loop: bool) -> None:
+    def __init__(self, indentation: Indentation, cycle_s: float, loop: bool, delay_s: float):
         self.indenter = indentation.indenter
-        self._ind, self._cycle, self._loop = indentation, cycle_s, loop
+        self._ind, self._cycle, self._loop, self._delay = indentation, cycle_s, loop, delay_s
 
     def at(self, t: float) -> tuple[float, np.ndarray]:
+        if t < self._delay:
+            return 0.0, self._ind.at(0.0)[1]
+        t -= self._delay
         return self._ind.at(math.fmod(t, self._cycle) if self._loop else t)
 
 
@@ -88,7 +95,9 @@ def scenario_indentation(
         return None
     xy = patch.taxel_xy()
     lo, hi = xy.min(axis=0), xy.max(axis=0)
-    center = (float((lo[0] + hi[0]) / 2), float((lo[1] + hi[1]) / 2))
+    # On the taxel nearest the patch centre: between taxels a small indenter may touch none.
+    nearest = xy[np.argmin(np.linalg.norm(xy - (lo + hi) / 2, axis=1))]
+    center = (float(nearest[0]), float(nearest[1]))
     hold = cycle_s - 1.5  # ramp 0.5 s, hold, release 0.5 s, rest 0.5 s
     if scenario == "press":
         return Indentation.press(indenter, force_n, center, start_s=0.0, ramp_s=0.5, hold_s=hold)
@@ -142,7 +151,9 @@ class SkinSimulatorNode(Node):
         ind = scenario_indentation(
             p["scenario"], self.patch, self.indenter, p["force_n"], p["cycle_s"]
         )
-        self.indentation = None if ind is None else _Looped(ind, p["cycle_s"], p["loop"])
+        self.indentation = (
+            None if ind is None else _Looped(ind, p["cycle_s"], p["loop"], p["start_delay_s"])
+        )
         kwargs_bus: dict[str, Any] = {"interface": p["interface"], "channel": p["channel"]}
         if p["bitrate"]:
             kwargs_bus["bitrate"] = p["bitrate"]
