@@ -330,6 +330,7 @@ def check_every_reading_once(
         assert fresh == [truths[k].values[module_slice(i)].tobytes()], (k, i)
 
 
+@pytest.mark.slow  # ~5 s: 10 000 garbage frames at the real 20 ms pace
 def test_garbage_is_counted_and_good_modules_keep_publishing(harness_factory: Any) -> None:
     h = harness_factory()
     h.wait_matched()
