@@ -115,11 +115,13 @@ def _corner_uz_effective(xc: Array, yc: Array, h: float, nu: float) -> Array:
     p += tail(xc, yc, ay)
     if nu == 0.5:
         return p
-    # atan(XY/(hR)) − sgnX·atan(Y/h) − sgnY·atan(X/h) + sgnX·sgnY·π/2, larger leg first
+    # V = atan(XY/(hR)) − sgnX·atan(Y/h) − sgnY·atan(X/h) + sgnX·sgnY·π/2 (for X, Y > 0) equals
+    # atan(h/M) − atan(h·m·(m²+h²)/((M+R)(M·m² + h²R))), M = max(|X|,|Y|), m = min; merged
+    # into one atan2 whose two arguments are sums of positive terms (hD ≥ 2·M·N).
     big, small = np.maximum(ax, ay), np.minimum(ax, ay)
-    v = np.arctan2(h, big) + np.arctan2(
-        -h * small * (small * small + h * h), (big + r) * (big * small * small + h * h * r)
-    )
+    num = h * small * (small * small + h * h)
+    den = (big + r) * (big * small * small + h * h * r)
+    v = np.arctan2(h * den - big * num, big * den + h * num)
     return 2.0 * (1.0 - nu) * p + (1.0 - 2.0 * nu) * h * np.sign(xc) * np.sign(yc) * v
 
 
