@@ -18,6 +18,7 @@ from tactile_contact.elastic import (
     love_uy,
     love_uz,
     love_uz_effective,
+    muscari_self,
 )
 
 # dblquad is asked for 1e-13 and sometimes reports round-off at that level; agreement is
@@ -189,9 +190,13 @@ def test_johnson_square_centre(nu):
 
 def test_paper_example_centre_deflection():
     # DESIGN.md §2: p = 1e5 Pa on a 1 × 0.4 mm cell, h = 2 mm: below 2e-4 m, B-C shallower.
-    p = 1e5
-    love = p * love_uz_effective(0.0, 0.0, 0.5e-3, 0.2e-3, H, E, 0.5)
+    p, a, b = 1e5, 0.5e-3, 0.2e-3
+    love = p * love_uz_effective(0.0, 0.0, a, b, H, E, 0.5)
     assert 0 < love < 2e-4
+    area = 4 * a * b
+    for psi in ("exact", 0.25):
+        bc = p * area * muscari_self(area, H, E, psi)  # the same load as one point force
+        assert 0 < bc < love
 
 
 def test_effective_changes_sign_like_the_point_kernel():

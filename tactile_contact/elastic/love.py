@@ -7,9 +7,11 @@ point from the cell centre. Every function returns a displacement per unit press
 Near the cell the point kernels are integrated in closed form as a corner sum
 Σ s_X·s_Y·F(X, Y) over X ∈ {a−x (+), −a−x (−)}, Y ∈ {b−y (+), −b−y (−)} with asinh / atan2
 antiderivatives (DESIGN.md §2; derivations in docs/elastic.md). A corner sum of four terms
-of size ~d·log d whose result is ~ab/d loses about (d/s)² in relative accuracy at distance d
-from a cell of half-size s, so from d ≥ FAR_RATIO·s the smooth point kernel is integrated by
-tensor Gauss–Legendre quadrature instead, which converges like (2d/s)^(−2n) there.
+of size ~d·log d whose result is ~ab/d loses about d²/(ab) in relative accuracy at distance d,
+so far away the smooth point kernel is integrated by tensor Gauss–Legendre quadrature instead,
+which converges like (2d/s)^(−2n), s = max(a, b): for u_z, u_x, u_y from d ≥ FAR_RATIO·s; for
+the effective u_z(0) − u_z(h), whose corner terms are put in a decaying (canonical) form first,
+by the budget rule of :func:`effective_far_plan`.
 """
 
 from __future__ import annotations
