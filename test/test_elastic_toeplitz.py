@@ -95,5 +95,7 @@ def test_validation():
     op = regular_grid_operator(3, 3, 1e-3, 1e-3, H, E, 0.5)
     with pytest.raises(ValueError, match="q must have shape"):
         op.matvec(np.ones(8))
+    with pytest.raises(ValueError, match="q must have shape"):
+        op.rmatvec(np.float64(1.0))
     with pytest.raises(ValueError, match="finite"):
         op.matvec(np.full(9, np.nan))

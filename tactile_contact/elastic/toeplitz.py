@@ -62,7 +62,7 @@ class RegularGridOperator:
         nx, ny = self.kernel.shape
         n = nx * ny
         v = finite_array("q", q)
-        if v.shape[0] != n or v.ndim > 2:
+        if v.ndim not in (1, 2) or v.shape[0] != n:
             raise ValueError(f"q must have shape ({n},) or ({n}, m), got {v.shape}")
         batch = v.reshape(nx, ny, -1)
         f = sfft.rfft2(batch, s=self._shape, axes=(0, 1), workers=-1)
