@@ -181,6 +181,15 @@ def test_boussinesq_block_matrix_layout_and_self_terms():
         assert b[0, 1] == b[0, 2] == b[1, 2] == b[2, 0] == 0.0
 
 
+def test_empty_point_sets():
+    none, one = np.zeros((0, 2)), np.zeros((1, 2))
+    assert love_matrix(none, one, [1e-3, 1e-3], H, E, 0.5).shape == (0, 1)
+    assert love_matrix(one, none, [1e-3, 1e-3], H, E, 0.5).shape == (1, 0)
+    assert boussinesq_matrix(none, one, 1e-6, H, E).shape == (0, 1)
+    assert boussinesq_matrix(one, none, 1e-6, H, E).shape == (1, 0)
+    assert boussinesq_block_matrix(one, none, 1e-6, H, E).shape == (3, 0)
+
+
 def test_validation_messages():
     pts = np.zeros((2, 2))
     with pytest.raises(ValueError, match=r"points must have shape \(n, 2\)"):

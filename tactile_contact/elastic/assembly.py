@@ -61,12 +61,12 @@ def _chunks(k: int, width: int, chunk_elements: int):
         yield slice(start, min(k, start + step))
 
 
-def _merge_close(values: Array) -> tuple[Array, Array]:
+def _merge_close(values: Array, limit: float) -> tuple[Array, Array]:
     """Distinct values and inverse indices, merging values within a few ulps (grid corners
-    computed as c + a and c' − a differ by rounding only)."""
+    computed as c + a and c' − a differ by rounding only), never by more than `limit` [m]."""
     uniq, inverse = np.unique(values, return_inverse=True)
     if uniq.size > 1:
-        tol = 8.0 * np.finfo(float).eps * max(np.abs(uniq).max(), np.finfo(float).tiny)
+        tol = min(8.0 * np.finfo(float).eps * np.abs(uniq).max(), limit)
         new_group = np.concatenate(([True], np.diff(uniq) > tol))
         group = np.cumsum(new_group) - 1
         uniq, inverse = uniq[new_group], group[inverse]
@@ -98,6 +98,8 @@ def love_matrix(
     if component not in ("x", "y", "z"):
         raise ValueError(f"component must be 'x', 'y' or 'z', got {component!r}")
     out = np.empty((p.shape[0], n))
+    if out.size == 0:
+        return out
     if component != "z":
         for rows in _chunks(p.shape[0], n, chunk_elements):
             dx = p[rows, 0:1] - c[None, :, 0]
@@ -105,8 +107,9 @@ def love_matrix(
             out[rows] = love_effective(dx, dy, hs[:, 0], hs[:, 1], h, e, nu, component)
         return out
     a, b = hs[:, 0], hs[:, 1]
-    ux, ix = _merge_close(np.stack([c[:, 0] + a, c[:, 0] - a]))  # (2, N): + then − corner
-    uy, iy = _merge_close(np.stack([c[:, 1] + b, c[:, 1] - b]))
+    limit = 1e-9 * min(a.min(), b.min())  # merging moves a corner by ≤ 1e-9 of a cell
+    ux, ix = _merge_close(np.stack([c[:, 0] + a, c[:, 0] - a]), limit)  # (2, N): +, − corner
+    uy, iy = _merge_close(np.stack([c[:, 1] + b, c[:, 1] - b]), limit)
     keys = ix[:, None, :] * uy.size + iy[None, :, :]  # (2, 2, N) corners (sx, sy, cell)
     ukeys, corner = np.unique(keys, return_inverse=True)
     corner = corner.reshape(keys.shape)
