@@ -58,7 +58,7 @@ def test_status_flags_are_distinct_bits() -> None:
 
     flags = [getattr(TaxelArray, n) for n in dir(TaxelArray) if n.startswith("STATUS_")]
     nonzero = [f for f in flags if f]
-    assert len(nonzero) == 7
+    assert len(nonzero) == 8
     assert all(f & (f - 1) == 0 for f in nonzero), "each flag is one bit"
     assert len(set(nonzero)) == len(nonzero)
 
