@@ -119,32 +119,37 @@ def stats(rows) -> str:
     )
 
 
+NO = {"refine": "none"}
 VARIANTS = {
-    "default (nnls_tikhonov 2-pass, λ 0.1, 2 mm, disc avg)": {},
-    "nnls λ 0.01 2-pass": {"solver": {"tikhonov": 0.01}},
-    "paper pinv (rcond 1e-3)": {"solver": {"method": "pinv"}},
-    "tikhonov identity λ 0.1 (free only)": {"solver": {"method": "tikhonov"}},
-    "nnls λ 0.1 one pass (seed_fraction 0)": {
-        "solver": {"seed_fraction": 0.0, "support_radius": 0.1}
+    "default: 2-pass NNLS λ 0.1 + axisymmetric refinement": {},
+    "2-pass NNLS λ 0.1, no refinement": {"solver": NO},
+    "2-pass NNLS λ 0.01, no refinement": {"solver": {"tikhonov": 0.01, **NO}},
+    "2-pass NNLS λ 0.001, no refinement": {"solver": {"tikhonov": 0.001, **NO}},
+    "1-pass NNLS λ 0.1 (no support restriction)": {
+        "solver": {"seed_fraction": 0.0, "support_radius": 0.1, **NO}
     },
-    "nnls λ 0.001 2-pass": {"solver": {"tikhonov": 0.001}},
-    "nnls laplacian λ 0.1 2-pass": {"solver": {"regulariser": "laplacian"}},
-    "nnls 2-pass, point taxels (no disc avg)": {"model": {"taxel_average": False}},
-    "nnls 2-pass, 3 mm cells": {"grid": {"traction_cell": 0.003}},
-    "nnls 2-pass, 4 mm cells": {"grid": {"traction_cell": 0.004}},
-    "nnls 2-pass, ν 0.49 in the model": {"elastomer": {"poisson": 0.49}},
+    "2-pass NNLS, Laplacian λ 0.1, no refinement": {"solver": {"regulariser": "laplacian", **NO}},
+    "2-pass NNLS, point taxels, no refinement": {
+        "model": {"taxel_average": False},
+        "solver": NO,
+    },
+    "2-pass NNLS, 3 mm cells, no refinement": {"grid": {"traction_cell": 0.003}, "solver": NO},
+    "2-pass NNLS, 4 mm cells, no refinement": {"grid": {"traction_cell": 0.004}, "solver": NO},
+    "2-pass NNLS, ν 0.49 model, no refinement": {"elastomer": {"poisson": 0.49}, "solver": NO},
+    "Tikhonov λ 0.1, free only": {"solver": {"method": "tikhonov"}},
+    "paper: pseudo-inverse rcond 1e-3": {"solver": {"method": "pinv"}},
 }
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--noise", type=float, default=0.15, help="noise RMS [8-bit counts]")
-    ap.add_argument("--quick", action="store_true", help="default and pinv only")
+    ap.add_argument("--quick", action="store_true", help="default, no refinement and pinv")
     ap.add_argument("--detail", action="store_true", help="per indenter/position/force table")
     args = ap.parse_args()
     base = yaml.safe_load((ROOT / "config/hexagon_patch.yaml").read_text())
     tmp = Path(tempfile.mkdtemp(prefix="bench_acc_"))
-    names = list(VARIANTS)[:2] if args.quick else list(VARIANTS)
+    names = list(VARIANTS)[:2] + list(VARIANTS)[-1:] if args.quick else list(VARIANTS)
     cases = None
     print(
         f"noise {args.noise} counts RMS + 8-bit quantisation; 4 indenters × 6 positions × "

@@ -148,6 +148,7 @@ def build_patch(patch: PatchLayout) -> tuple[dict[str, Any], dict[str, NDArray[A
         "seed_fraction": s.seed_fraction,
         "rel_threshold": s.area_rel_threshold,
         "min_pressure": s.area_min_pressure,
+        "refine": s.refine,
     }
     manifest = {
         "patch": patch.name,

@@ -14,6 +14,9 @@
    carrying at least ``seed_fraction`` of the first pass's peak. The second pass removes the
    broad, nearly invisible pressure that a ν = 0.5 layer admits (its response to a uniform
    load vanishes) and that otherwise inflates the net force (docs/reconstruction.md).
+   With ``refine: axisymmetric`` (default) a single round contact (Hertz-like or punch-like
+   profile, radius and centre searched near the NNLS solution) replaces the NNLS field when it
+   explains the data about as well (``ContactResult.refined``).
 5. Summary (total force, CoP, area, peak) and, when wanted, the deflection grid = G·q.
 
 Methods ``tikhonov``, ``tsvd`` and ``pinv`` (the paper's) use the free product only.
@@ -21,6 +24,7 @@ Methods ``tikhonov``, ``tsvd`` and ``pinv`` (the paper's) use the free product o
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -58,6 +62,7 @@ class ContactResult:
         residual_norm: ‖C·q − δ‖ [m] over the valid taxels.
         solve_time: wall time of the solve [s].
         taxels_active: valid taxels with |δ| above the noise threshold.
+        refined: the axisymmetric single-contact refinement replaced the NNLS field.
     """
 
     traction: NDArray[np.float64] | None
@@ -73,6 +78,7 @@ class ContactResult:
     residual_norm: float
     solve_time: float
     taxels_active: int
+    refined: bool = False
 
 
 def _grid(bundle: Bundle, key: str) -> Grid:
@@ -204,7 +210,7 @@ class Reconstructor:
         if active == 0:
             return self._zero(want_t, want_d, 0)
         t0 = time.perf_counter()
-        success, iterations, path = True, 0, self.method
+        success, iterations, path, refined = True, 0, self.method, False
         if ok.all():
             q = (self._inverse @ delta.astype(np.float32)).astype(np.float64)
         else:
@@ -213,7 +219,7 @@ class Reconstructor:
             path = "free"
             if np.any(q < -3.0 * self._cell_noise):
                 path = "nnls"
-                q, success, iterations = self._constrained(delta, ok)
+                q, success, iterations, refined = self._constrained(delta, ok)
         dt = time.perf_counter() - t0
         residual = float(np.linalg.norm((self.forward @ q - delta)[ok]))
         s = summarize(
@@ -244,6 +250,7 @@ class Reconstructor:
             residual,
             dt,
             active,
+            refined,
         )
 
     def _masked_free(self, ok: NDArray) -> NDArray[np.float64]:
@@ -279,17 +286,79 @@ class Reconstructor:
         res = solver.solve(delta[ok], warm_start=warm)
         return np.asarray(res.x, dtype=np.float64), bool(res.success), int(res.iterations)
 
-    def _constrained(self, delta: NDArray, ok: NDArray) -> tuple[NDArray, bool, int]:
+    def _constrained(self, delta: NDArray, ok: NDArray) -> tuple[NDArray, bool, int, bool]:
         q1, s1, it1 = self._nnls(None, ok, delta, warm=True)
         peak = q1.max(initial=0.0)
         if peak <= 0:
-            return q1, s1, it1
+            return q1, s1, it1, False
         seeds = self._centers[q1 >= float(self.params["seed_fraction"]) * peak]
         cols = distance_to_points(self._centers, seeds) <= float(self.params["support_radius"])
         q2, s2, it2 = self._nnls(cols, ok, delta, warm=False)
         q = np.zeros_like(q1)
         q[cols] = q2
-        return q, s1 and s2, it1 + it2
+        if self.params.get("refine", "none") == "axisymmetric":
+            fit = self._axisymmetric_fit(q, delta, ok)
+            if fit is not None:
+                return fit, s1 and s2, it1 + it2, True
+        return q, s1 and s2, it1 + it2, False
+
+    def _axisymmetric_fit(self, q: NDArray, delta: NDArray, ok: NDArray) -> NDArray | None:
+        """Best single axisymmetric contact (Hertz-like or flat-punch-like profile) near the
+        NNLS solution, or None when it explains the data clearly worse than the NNLS field.
+
+        Searches the profile family, contact radius (FIT_RADII) and centre (±1.5 mm around the
+        NNLS centre of pressure, 0.75 mm steps); the force of each candidate is the
+        non-negative least-squares scale. The candidate's exact cell averages replace q.
+        """
+        from tactile_contact.indenters import FlatPunch, HertzSphere, effective_modulus
+
+        pos = q > 0
+        if not pos.any():
+            return None
+        cop = (q[pos] @ self._centers[pos]) / q[pos].sum()
+        p = self.params
+        young, nu = float(p["young"]), float(p["poisson"])
+        e_star = effective_modulus(young, nu)
+        reach = max(FIT_RADII) + 1.5e-3 + self.traction_grid.cell_size
+        local = np.hypot(*(self._centers - cop).T) <= reach
+        cen = self._centers[local]
+        hs = np.full_like(cen, 0.5 * self.traction_grid.cell_size)
+        c_loc = self.forward[np.ix_(ok, local)]
+        d = delta[ok]
+        best: tuple[float, float, NDArray] | None = None
+        shapes = [FlatPunch(a) for a in FIT_RADII]
+        shapes += [HertzSphere(4.0 * e_star * a**3 / 3.0) for a in FIT_RADII]  # a at 1 N
+        steps = np.arange(-2, 3) * 0.75e-3
+        for dx in steps:
+            for dy in steps:
+                c = cop + np.array([dx, dy])
+                for shape in shapes:
+                    unit = shape.pressure_on_cells(cen, hs, 1.0, c, young, nu)
+                    d1 = c_loc @ unit
+                    nn = float(d1 @ d1)
+                    if nn <= 0:
+                        continue
+                    force = max(0.0, float(d1 @ d) / nn)
+                    r = float(np.linalg.norm(force * d1 - d))
+                    if best is None or r < best[0]:
+                        best = (r, force, unit)
+        if best is None or best[1] <= 0:
+            return None
+        # Accept the single contact only if it explains the data about as well as the free-form
+        # NNLS field (two separate contacts, or a non-round one, do not).
+        r_nnls = float(np.linalg.norm(self.forward[ok] @ q - d))
+        if best[0] > FIT_RESIDUAL_FACTOR * r_nnls + self.noise * math.sqrt(d.size):
+            return None
+        out = np.zeros_like(q)
+        out[local] = best[1] * best[2]
+        return out
+
+
+#: Contact radii [m] tried by the axisymmetric refinement.
+FIT_RADII = (0.75e-3, 1.0e-3, 1.5e-3, 2.0e-3, 3.0e-3, 4.0e-3, 6.0e-3)
+#: The refinement is kept only if its residual is at most this factor times the NNLS residual
+#: plus the noise (two separate contacts, or a strongly non-round one, fail this).
+FIT_RESIDUAL_FACTOR = 1.5
 
 
 # --- solver access ------------------------------------------------------------------------

@@ -196,3 +196,19 @@ def test_expected_layout_mismatch_is_refused(tmp_path_factory):
     with pytest.raises(BundleStaleError):
         Reconstructor.from_bundle(path, parse_layout(doc).patches[0])
     Reconstructor.from_bundle(path, load_layout(ROOT / "config" / "hexagon_patch.yaml").patches[0])
+
+
+def test_axisymmetric_refinement_single_contact_only(default):
+    r, _ = default
+    fm = ForwardModel(r.taxel_xy, 2e-3, 2.1e5, 0.5, taxel_radius=2e-3)
+    one = fm.compression(HertzSphere(3e-3), 1.0, r.taxel_xy[20] + [1e-3, 0.5e-3])
+    res = r.solve_deflection(one)
+    assert res.refined and res.solver == "nnls"
+    assert res.total_force == pytest.approx(1.0, rel=0.1)
+    assert np.hypot(*(np.asarray(res.cop) - r.taxel_xy[20] - [1e-3, 0.5e-3])) < 0.5e-3
+    # two separate contacts: one round contact cannot explain them, the NNLS field is kept
+    two = one + fm.compression(HertzSphere(6e-3), 1.0, r.taxel_xy[51])
+    res2 = r.solve_deflection(two)
+    assert not res2.refined
+    assert res2.total_force == pytest.approx(2.0, rel=0.25)
+    assert res2.cop == pytest.approx(tuple(r.taxel_xy[[20, 51]].mean(axis=0)), abs=1.5e-3)
