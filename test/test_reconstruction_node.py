@@ -150,11 +150,13 @@ def test_bad_frames_are_counted_and_the_node_keeps_running(
     unknown = TaxelArray(
         patch="hexagon", taxel_ids=[0x0F00], delta_c=[1e-15], raw=[240], status=[0]
     )
-    for msg in (bad, unknown):
+    # The input keeps only the newest frame: send one at a time.
+    for count, msg in enumerate((bad, unknown), start=1):
         rig.pub.publish(msg)
-    assert spin_until(rig.executor, lambda: pipeline.stats.bad_frames == 2)
-    # NaN readings and flagged taxels are left out, never reach a message.
-    dc = _delta_c(1.0, (0.0, 0.0))
+        assert spin_until(rig.executor, lambda c=count: pipeline.stats.bad_frames == c)
+    # NaN readings and flagged taxels (all on module 0, away from the load) are left out and
+    # never reach a message.
+    dc = _delta_c(1.0, tuple(pipeline.recon.taxel_xy[30]))
     dc[:5] = np.nan
     status = np.zeros(len(rig.ids), np.uint8)
     status[5:8] = TaxelArray.STATUS_DEAD
@@ -162,7 +164,7 @@ def test_bad_frames_are_counted_and_the_node_keeps_running(
     state = rig.contacts[-1]
     assert np.isfinite([state.total_force, state.contact_area, state.peak_pressure]).all()
     assert state.taxels_used == len(rig.ids) - 8
-    assert state.total_force == pytest.approx(1.0, rel=0.3)
+    assert state.total_force == pytest.approx(1.0, rel=0.15)
     rig.close()
 
 
