@@ -325,23 +325,44 @@ class Reconstructor:
         hs = np.full_like(cen, 0.5 * self.traction_grid.cell_size)
         c_loc = self.forward[np.ix_(ok, local)]
         d = delta[ok]
-        best: tuple[float, float, NDArray] | None = None
         shapes = [FlatPunch(a) for a in FIT_RADII]
         shapes += [HertzSphere(4.0 * e_star * a**3 / 3.0) for a in FIT_RADII]  # a at 1 N
+
+        def score(shape, c):
+            unit = shape.pressure_on_cells(cen, hs, 1.0, c, young, nu)
+            d1 = c_loc @ unit
+            nn = float(d1 @ d1)
+            if nn <= 0:
+                return None
+            force = max(0.0, float(d1 @ d) / nn)
+            return float(np.linalg.norm(force * d1 - d)), force, unit, shape, c
+
+        def better(cur, new):
+            return new if new is not None and (cur is None or new[0] < cur[0]) else cur
+
+        # Coarse to fine (time): every profile at the NNLS centre, then the centre on a
+        # ±1.5 mm / 0.75 mm lattice for the best profile and its neighbouring radii.
+        best = None
+        for shape in shapes:
+            best = better(best, score(shape, cop))
+        if best is None:
+            return None
+        k = shapes.index(best[3])
+        family = shapes[: len(FIT_RADII)] if k < len(FIT_RADII) else shapes[len(FIT_RADII) :]
+        j = k % len(FIT_RADII)
+        near = family[max(0, j - 1) : j + 2]
         steps = np.arange(-2, 3) * 0.75e-3
         for dx in steps:
             for dy in steps:
-                c = cop + np.array([dx, dy])
-                for shape in shapes:
-                    unit = shape.pressure_on_cells(cen, hs, 1.0, c, young, nu)
-                    d1 = c_loc @ unit
-                    nn = float(d1 @ d1)
-                    if nn <= 0:
-                        continue
-                    force = max(0.0, float(d1 @ d) / nn)
-                    r = float(np.linalg.norm(force * d1 - d))
-                    if best is None or r < best[0]:
-                        best = (r, force, unit)
+                for shape in near:
+                    best = better(best, score(shape, cop + np.array([dx, dy])))
+        # Polish: half steps around the best centre, best profile and neighbouring radii.
+        c0 = best[4]
+        j = family.index(best[3]) if best[3] in family else j
+        for dx in (-0.375e-3, 0.0, 0.375e-3):
+            for dy in (-0.375e-3, 0.0, 0.375e-3):
+                for shape in family[max(0, j - 1) : j + 2]:
+                    best = better(best, score(shape, c0 + np.array([dx, dy])))
         if best is None or best[1] <= 0:
             return None
         # Accept the single contact only if it explains the data about as well as the free-form
