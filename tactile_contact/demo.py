@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+# Unloaded time before the sweep: the driver calibrates its baseline on it.
+START_DELAY_S = 1.0
 DEFAULT_LAYOUT = Path(__file__).resolve().parents[1] / "config" / "hexagon_patch.yaml"
 
 
@@ -183,7 +185,12 @@ def run(
         bundles_dir=str(bundles),
         channel=f"tactile_demo_{time.monotonic_ns()}",
         scenario=scenario,
-        simulator={"period_ms": period_ms, "cycle_s": duration, "loop": False},
+        simulator={
+            "period_ms": period_ms,
+            "cycle_s": duration,
+            "loop": False,
+            "start_delay_s": START_DELAY_S,
+        },
     )
     seen = Observed()
     context = Context()
@@ -191,7 +198,7 @@ def run(
     try:
         observer = _observer(context, patch, seen)
         with running_graph(config, context, extra_nodes=(observer,)) as executor:
-            end = time.monotonic() + duration + 1.0
+            end = time.monotonic() + START_DELAY_S + duration + 0.5
             while time.monotonic() < end:
                 executor.spin_once(timeout_sec=0.02)
         observer.destroy_node()

@@ -69,6 +69,8 @@ PARAMETERS: tuple[tuple[str, Any, str, dict[str, Any]], ...] = (
     ("drift_cdc_per_s", 0.0, "baseline drift of every channel",
      {"unit": "CDC counts/s", "float_range": (-1000.0, 1000.0)}),
     ("class3_ids", False, "send class 3 ids (0x3xx, older firmware) instead of class 4", {}),
+    ("fine_cell_m", 5.0e-4, "pressure cell of the forward simulation (finer: slower, exacter)",
+     {"unit": "m", "float_range": (5.0e-5, 2.0e-3)}),
 )
 # fmt: on
 
@@ -145,6 +147,7 @@ class SkinSimulatorNode(Node):
             period_s=self.period_s,
             id_class=CLASS_ANALOG_SENSOR if p["class3_ids"] else CLASS_SKIN,
             seed=p["seed"],
+            fine_cell=p["fine_cell_m"],
         )
         shape = HertzSphere if p["indenter"] == "sphere" else FlatPunch
         self.indenter = shape(p["indenter_radius_m"])
@@ -175,14 +178,17 @@ class SkinSimulatorNode(Node):
     def _run(self) -> None:
         """Send one period every ``period_s`` of wall time until stopped; never raises."""
         assert self._bus is not None
-        wall0, mono0 = time.time(), time.monotonic()
+        mono0 = time.monotonic()
         k = 0
         while not self._stop.is_set():
             t = k * self.period_s
             try:
                 period = self.sim.period(self.indentation, t)  # type: ignore[arg-type]
+                # Stamped when sent, as a bus would: if the simulation falls behind its
+                # schedule, latency downstream is still measured from the frames' real arrival.
+                sent = time.time()
                 for msg in period.messages:
-                    msg.timestamp += wall0  # simulated time → wall clock (epoch s)
+                    msg.timestamp = sent
                     self._bus.send(msg, timeout=0.01)
                 self._publish_truth(period)
                 self.periods_sent += 1
