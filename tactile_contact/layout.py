@@ -141,7 +141,7 @@ class SolverSpec:
         regulariser: ``identity`` or ``laplacian`` (smoothness) for the Tikhonov term.
         tikhonov: λ relative to the largest singular value of C [-].
         rcond: relative singular-value cut-off of ``pinv`` [-].
-        tsvd_rank: singular values kept by ``tsvd`` (None: chosen by GCV at build time).
+        tsvd_rank: singular values kept by ``tsvd`` (None: all of them).
         noise: taxel compression noise [m]: contact test (|δ| above it) and the free solution's
             non-negativity test.
         nnls_method: ``bpp`` (block principal pivoting) or ``fista``.

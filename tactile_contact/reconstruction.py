@@ -382,60 +382,26 @@ FIT_RADII = (0.75e-3, 1.0e-3, 1.5e-3, 2.0e-3, 3.0e-3, 4.0e-3, 6.0e-3)
 FIT_RESIDUAL_FACTOR = 1.5
 
 
-# --- solver access ------------------------------------------------------------------------
-# The project's solvers live in tactile_contact.solvers. Until that module is importable the two
-# helpers below fall back to numpy's SVD and scipy.optimize.nnls on the stacked Tikhonov system
-# (same objective ‖Ax − d‖² + λ²‖Lx‖², no warm start), so bundles build and tests run.
+# --- solver access (tactile_contact.solvers) -----------------------------------------------
 
 
 def regularised_inverse(
     matrix: NDArray, method: str, lam: float, reg: NDArray | None, rcond: float, rank: int
 ) -> NDArray[np.float64]:
-    """(N, K) free inverse: ``pinv`` (rcond), ``tsvd`` (rank) or Tikhonov (λ, regulariser)."""
-    try:
-        from tactile_contact.solvers import SvdInverse
-    except ImportError:
-        SvdInverse = None
-    if SvdInverse is not None:
-        inv = SvdInverse(matrix, regulariser=reg)
-        if method == "pinv":
-            return np.asarray(inv.pinv_operator(rcond), dtype=np.float64)
-        if method == "tsvd":
-            return np.asarray(inv.tsvd_operator(rank), dtype=np.float64)
-        return np.asarray(inv.tikhonov_operator(lam), dtype=np.float64)
+    """(N, K) free inverse: ``pinv`` (rcond), ``tsvd`` (rank) or Tikhonov (λ, regulariser L),
+    all from one SVD (:class:`tactile_contact.solvers.SvdInverse`)."""
+    from tactile_contact.solvers import SvdInverse
+
+    inv = SvdInverse(matrix, regulariser=reg)
     if method == "pinv":
-        return np.linalg.pinv(matrix, rcond=rcond)
+        return np.asarray(inv.pinv_operator(rcond), dtype=np.float64)
     if method == "tsvd":
-        u, sv, vt = np.linalg.svd(matrix, full_matrices=False)
-        return (vt[:rank].T / sv[:rank]) @ u[:rank].T
-    ell = np.eye(matrix.shape[1]) if reg is None else reg
-    return np.linalg.solve(matrix.T @ matrix + lam**2 * (ell.T @ ell), matrix.T)
-
-
-class _StackedNnls:
-    def __init__(self, matrix: NDArray, tikhonov: float, regulariser: NDArray | None) -> None:
-        ell = np.eye(matrix.shape[1]) if regulariser is None else regulariser
-        self.a = np.vstack([matrix, tikhonov * ell])
-        self.k = matrix.shape[0]
-
-    def solve(self, d: NDArray, warm_start: bool = True) -> Any:
-        from types import SimpleNamespace
-
-        from scipy.optimize import nnls
-
-        b = np.concatenate([d, np.zeros(self.a.shape[0] - self.k)])
-        try:
-            x, _ = nnls(self.a, b, maxiter=50 * self.a.shape[1])
-            ok = True
-        except RuntimeError:
-            x, ok = np.zeros(self.a.shape[1]), False
-        return SimpleNamespace(x=x, success=ok, iterations=0)
+        return np.asarray(inv.tsvd_operator(rank), dtype=np.float64)
+    return np.asarray(inv.tikhonov_operator(lam), dtype=np.float64)
 
 
 def nnls_solver(matrix: NDArray, tikhonov: float, regulariser: NDArray | None, method: str) -> Any:
-    """A warm-startable NNLS(+Tikhonov) solver object with ``.solve(d, warm_start)``."""
-    try:
-        from tactile_contact.solvers import NnlsSolver
-    except ImportError:
-        return _StackedNnls(matrix, tikhonov, regulariser)
+    """A warm-startable solver of min ‖Ax − d‖² + λ²‖Lx‖², x ≥ 0 (NnlsSolver)."""
+    from tactile_contact.solvers import NnlsSolver
+
     return NnlsSolver(matrix, tikhonov=tikhonov, regulariser=regulariser, method=method)
