@@ -212,3 +212,15 @@ def test_axisymmetric_refinement_single_contact_only(default):
     assert not res2.refined
     assert res2.total_force == pytest.approx(2.0, rel=0.25)
     assert res2.cop == pytest.approx(tuple(r.taxel_xy[[20, 51]].mean(axis=0)), abs=1.5e-3)
+
+
+def test_positively_homogeneous_in_the_data(default, indentation):
+    # Non-negative least squares with a fixed λ, the support rule and the profile fit are all
+    # positively homogeneous: twice the readings give twice the pressure, same CoP and area.
+    r, _ = default
+    delta, _ = indentation
+    a, b = r.solve_deflection(delta), r.solve_deflection(2.0 * delta)
+    assert a.refined == b.refined
+    assert b.total_force == pytest.approx(2.0 * a.total_force, rel=1e-5)
+    assert b.cop == pytest.approx(a.cop, abs=1e-7)
+    assert b.contact_area == pytest.approx(a.contact_area)
