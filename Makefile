@@ -10,7 +10,7 @@ STAMP := $(VENV)/.stamps
 SITE := $(VENV)/lib/python3.*/site-packages
 ROS_TEST_ENV := ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-$$((20 + $$$$ % 70))}
 
-.PHONY: all setup demo test lint format bench bench-quick bundles clean distclean help
+.PHONY: all setup demo test lint format bench bench-quick bundles test-data clean distclean help
 all: setup
 
 help:
@@ -66,6 +66,13 @@ bundles: setup
 
 demo: setup bundles
 	$(ROS_TEST_ENV) $(PY) -m tactile_contact.demo --bundles bundles --out out
+
+# The recorded session shipped for test/test_bag_replay.py (re-record after changing the
+# reconstruction on purpose).
+test-data: setup bundles
+	rm -rf test/data/hexagon_session
+	$(ROS_TEST_ENV) $(PY) -m tactile_contact.cli bringup --simulate --bundles bundles \
+	  --duration 7 --record test/data/hexagon_session --record-topics taxels contact contact_truth
 
 bench: setup
 	$(PY) bench/tradeoff.py --out docs/bench

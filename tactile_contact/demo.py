@@ -85,7 +85,7 @@ def _stamp(header: object) -> float:
     return round(header.stamp.sec + header.stamp.nanosec * 1e-9, 6)  # type: ignore[attr-defined]
 
 
-def _observer(context: object, patch: str, seen: Observed) -> object:
+def observer_node(context: object, patch: str, seen: Observed) -> object:
     """A node that subscribes to every output (so every output is computed) and stores it."""
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -196,7 +196,7 @@ def run(
     context = Context()
     rclpy.init(context=context)
     try:
-        observer = _observer(context, patch, seen)
+        observer = observer_node(context, patch, seen)
         with running_graph(config, context, extra_nodes=(observer,)) as executor:
             end = time.monotonic() + START_DELAY_S + duration + 0.5
             while time.monotonic() < end:
