@@ -9,6 +9,7 @@ nonlinear capacitance of a deformed plate) are independent of any reconstruction
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -161,3 +162,96 @@ class ForwardModel:
             raise ValueError("compression reaches the layer thickness: force too large")
         area = math.pi * self.taxel_radius**2
         return EPSILON_0 * epsilon_r * area * ((1.0 / (h - dq) - 1.0 / h) @ self._qw)
+
+
+class PatchForwardModel:
+    """A forward model for real-time simulation: one fixed fine grid over the whole patch.
+
+    The Love kernel from every fine cell to every (electrode-averaged) taxel is computed once;
+    a frame then costs the indenter's exact cell averages on the cells it touches and one small
+    product, instead of a new kernel per contact position (:class:`ForwardModel`, the accuracy
+    reference, builds a contact-centred grid each time). Cells do not follow the contact, so
+    small contacts are resolved by ``fine_cell`` only; the total force is still exact.
+
+    Args:
+        points_xy: (K, 2) taxel centres [m].
+        thickness, young, poisson: layer h [m], E [Pa], ν.
+        fine_cell: edge of the fixed pressure cells [m].
+        taxel_radius: electrode radius [m]; > 0 averages over the disc (as the bundles do).
+        margin: how far the grid extends beyond the taxels [m].
+    """
+
+    def __init__(
+        self,
+        points_xy: ArrayLike,
+        thickness: float,
+        young: float,
+        poisson: float,
+        fine_cell: float = 5.0e-4,
+        taxel_radius: float = 0.0,
+        margin: float = 6.0e-3,
+    ) -> None:
+        from tactile_contact.grids import Grid
+
+        self._ref = ForwardModel(points_xy, thickness, young, poisson, fine_cell, taxel_radius)
+        p = self._ref.points_xy
+        self.grid = Grid.covering(p, fine_cell, margin)
+        self._centers = self.grid.centers()
+        self._half = np.full(2, 0.5 * self.grid.cell_size)
+        self.kernel = _patch_kernel(
+            p.tobytes(),
+            len(p),
+            thickness,
+            young,
+            poisson,
+            self.grid.cell_size,
+            margin,
+            taxel_radius,
+        )
+        self.young, self.poisson = float(young), float(poisson)
+
+    def compression(
+        self, indenter: Indenter, force: float, center_xy: ArrayLike
+    ) -> NDArray[np.float64]:
+        """(K,) effective deflection u_z(0) − u_z(h) [m] at the taxels."""
+        c = np.asarray(center_xy, dtype=np.float64)
+        if c.shape != (2,) or not np.all(np.isfinite(c)):
+            raise ValueError(f"center_xy must be a finite (x, y) pair [m], got {center_xy!r}")
+        if not (math.isfinite(force) and force >= 0):
+            raise ValueError(f"force must be finite and >= 0 N, got {force!r}")
+        if force == 0:
+            return np.zeros(self.kernel.shape[0])
+        a = indenter.contact_radius(force, self.young, self.poisson)
+        near = np.abs(self._centers - c).max(axis=1) <= a + self.grid.cell_size
+        p = indenter.pressure_on_cells(
+            self._centers[near], self._half, force, c, self.young, self.poisson
+        )
+        return self.kernel[:, near] @ p
+
+
+@functools.lru_cache(maxsize=4)
+def _patch_kernel(
+    points: bytes,
+    count: int,
+    thickness: float,
+    young: float,
+    poisson: float,
+    cell: float,
+    margin: float,
+    taxel_radius: float,
+) -> NDArray[np.float64]:
+    """(K, M) kernel of :class:`PatchForwardModel`, cached: simulators of one patch started in
+    one process (tests, bringup) share it instead of recomputing seconds of Love kernels."""
+    from tactile_contact.elastic import love_matrix
+    from tactile_contact.grids import Grid
+
+    p = np.frombuffer(points, dtype=np.float64).reshape(count, 2)
+    centers = Grid.covering(p, cell, margin).centers()
+    half = np.full(2, 0.5 * cell)
+    q, w = disc_quadrature(taxel_radius, n_r=3, n_theta=8)
+    kernel = np.empty((count, len(centers)))
+    for i in range(count):  # one taxel at a time bounds the memory
+        rows = p[i] + q
+        kernel[i] = w @ love_matrix(rows, centers, half, thickness, young, poisson)
+    kernel.setflags(write=False)
+    return kernel

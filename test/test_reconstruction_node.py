@@ -34,7 +34,9 @@ def _delta_c(force: float, center: tuple[float, float]) -> np.ndarray:
 
     patch = load_layout(LAYOUT).patches[0]
     e, s = patch.elastomer, patch.sensor
-    model = ForwardModel(patch.taxel_xy(), e.thickness, e.young, e.poisson, taxel_radius=0.0)
+    model = ForwardModel(
+        patch.taxel_xy(), e.thickness, e.young, e.poisson, taxel_radius=s.taxel_radius
+    )
     delta = model.compression(HertzSphere(radius=6e-3), force, center)
     from tactile_contact.sensor import compression_to_delta_c
 

@@ -148,6 +148,7 @@ class SkinSimulatorNode(Node):
             id_class=CLASS_ANALOG_SENSOR if p["class3_ids"] else CLASS_SKIN,
             seed=p["seed"],
             fine_cell=p["fine_cell_m"],
+            realtime=True,
         )
         shape = HertzSphere if p["indenter"] == "sphere" else FlatPunch
         self.indenter = shape(p["indenter_radius_m"])
