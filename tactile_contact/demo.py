@@ -189,6 +189,9 @@ def run(
             "period_ms": period_ms,
             "cycle_s": duration,
             "loop": False,
+            # 0.15 count RMS after the shift: the noise of the accuracy study
+            # (docs/reconstruction.md).
+            "noise_cdc": 0.6,
             "start_delay_s": START_DELAY_S,
         },
     )

@@ -150,9 +150,10 @@ class SolverSpec:
         seed_fraction: first-pass cells at or above this fraction of its peak seed the support.
         area_rel_threshold: a cell is in contact above this fraction of the peak pressure [-].
         area_min_pressure: ... and above this pressure [Pa].
-        refine: ``axisymmetric`` (default): after NNLS, fit one round contact (Hertz-like or
-            flat-punch-like profile) and keep it when it explains the data about as well;
-            ``none``: keep the NNLS field.
+        refine: ``none`` (default): keep the two-pass NNLS field; ``axisymmetric``: after NNLS,
+            fit one round contact (Hertz-like or flat-punch-like profile) and keep it when it
+            explains the data about as well (better force on clean data, but fragile with the
+            driver's real baseline offsets and ~10× slower: docs/reconstruction.md).
     """
 
     method: str = "nnls_tikhonov"
@@ -166,7 +167,7 @@ class SolverSpec:
     seed_fraction: float = 0.3
     area_rel_threshold: float = 0.1
     area_min_pressure: float = 100.0
-    refine: str = "axisymmetric"
+    refine: str = "none"
 
 
 @dataclass(frozen=True)
@@ -475,7 +476,7 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
             so, "area_rel_threshold", sop, 0.1, lo=0.0, hi=1.0, hi_open=True
         ),
         area_min_pressure=c.number(so, "area_min_pressure", sop, 100.0, lo=0.0),
-        refine=c.choice(so, "refine", sop, "axisymmetric", ("axisymmetric", "none")),
+        refine=c.choice(so, "refine", sop, "none", ("axisymmetric", "none")),
     )
     patch = PatchLayout(str(name), frame, modules, elast, sensor, grid, model, solver)
     _check_patch(c, patch, path)

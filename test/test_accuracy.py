@@ -111,13 +111,32 @@ def test_centre_of_pressure_median_within_1mm(default_rows):
 
 
 def test_force_at_3N_and_overall_regression_bounds(default_rows):
-    # Measured (docs/reconstruction.md); these bounds guard against regressions.
+    # Measured with the default (two-pass NNLS, no refinement): 40 % overall, 32 % at 3 N,
+    # 36 % over a taxel at >= 1 N (docs/reconstruction.md); bounds guard against regressions.
     err = np.array([r[3] for r in default_rows])
     f3 = np.array([r[3] for r in default_rows if r[2] == 3.0])
-    assert np.median(f3) <= 12.0
-    assert np.median(err) <= 35.0
+    assert np.median(f3) <= 36.0
+    assert np.median(err) <= 45.0
     over = [r[3] for r in default_rows if r[1] == "over" and r[2] >= 1.0]
-    assert np.median(over) <= 12.0
+    assert np.median(over) <= 40.0
+
+
+def test_default_is_robust_to_the_drivers_baseline_offsets(tmp_path_factory, cases):
+    """Why the default does not refine: a driver's baseline is a mean of quantised samples, so
+    every taxel, loaded or not, carries a fixed offset of up to ±½ count. The round-contact
+    refinement wins on ideally quantised data (24 % vs 40 % median force error) and loses with
+    these offsets (61 % vs 45 %)."""
+    recon, cs = cases
+    refined = _recon(tmp_path_factory, refine="axisymmetric")
+    lsb = value_count_farad(recon.params["farad_per_count"], recon.params["shift"])
+    rng = np.random.default_rng(3)
+    offset_cases = [
+        (i, p, f, c, dcq + rng.uniform(-0.5, 0.5, dcq.shape) * lsb) for i, p, f, c, dcq in cs
+    ]
+    ours = np.median([r[3] for r in _errors(recon, offset_cases)])
+    theirs = np.median([r[3] for r in _errors(refined, offset_cases)])
+    assert ours <= 50.0
+    assert ours < theirs
 
 
 @pytest.mark.xfail(

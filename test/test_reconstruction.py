@@ -40,6 +40,12 @@ def default(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
+def refined(tmp_path_factory):
+    path, patch = _bundle(tmp_path_factory, "refined", solver={"refine": "axisymmetric"})
+    return Reconstructor.from_bundle(path, patch), patch
+
+
+@pytest.fixture(scope="module")
 def point_pinv(tmp_path_factory):
     path, patch = _bundle(
         tmp_path_factory, "pinv", model={"taxel_average": False}, solver={"method": "pinv"}
@@ -198,8 +204,8 @@ def test_expected_layout_mismatch_is_refused(tmp_path_factory):
     Reconstructor.from_bundle(path, load_layout(ROOT / "config" / "hexagon_patch.yaml").patches[0])
 
 
-def test_axisymmetric_refinement_single_contact_only(default):
-    r, _ = default
+def test_axisymmetric_refinement_single_contact_only(refined):
+    r, _ = refined
     fm = ForwardModel(r.taxel_xy, 2e-3, 2.1e5, 0.5, taxel_radius=2e-3)
     one = fm.compression(HertzSphere(3e-3), 1.0, r.taxel_xy[20] + [1e-3, 0.5e-3])
     res = r.solve_deflection(one)

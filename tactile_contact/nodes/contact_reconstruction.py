@@ -51,8 +51,6 @@ from tactile_contact.nodes.common import (
 )
 from tactile_contact.reconstruction import Reconstructor
 
-# Newest frame only: a reconstruction that falls behind drops old frames instead of queueing.
-INPUT_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 OUTPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 # A taxel with any of these flags is left out of the solve.
@@ -66,6 +64,7 @@ _UNUSABLE = (
 PARAMETERS = (
     "bundles_dir",
     "patches",
+    "queue_depth",
     "visualization_every",
     "taxel_full_scale",
     "diagnostics_period",
@@ -116,7 +115,10 @@ class PatchPipeline:
         }
         self.pub_markers = node.create_publisher(MarkerArray, f"{p}/taxel_markers", OUTPUT_QOS)
         self.pub_cloud = node.create_publisher(PointCloud2, f"{p}/pressure_cloud", OUTPUT_QOS)
-        self.sub = node.create_subscription(TaxelArray, f"{p}/taxels", self.on_taxels, INPUT_QOS)
+        # Depth 1 by default: a reconstruction that falls behind drops old frames instead of
+        # queueing them, so what it publishes is always the newest reading.
+        input_qos = QoSProfile(depth=node.queue_depth, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self.sub = node.create_subscription(TaxelArray, f"{p}/taxels", self.on_taxels, input_qos)
         header = Header(frame_id=self.frame_id)
         header.stamp = node.get_clock().now().to_msg()
         for kind, grid in (
@@ -297,6 +299,14 @@ class ContactReconstructionNode(Node):
             "patches",
             STRING_ARRAY_EMPTY,
             "patches to serve (empty: every bundle in bundles_dir); lets processes share a skin",
+        )
+        self.queue_depth = declare_parameter(
+            self,
+            "queue_depth",
+            1,
+            "input frames kept while a solve runs (1: only the newest; more: process every "
+            "frame, late, when the machine cannot keep up)",
+            int_range=(1, 1000),
         )
         self.visualization_every = declare_parameter(
             self,

@@ -1,0 +1,116 @@
+"""End to end over real DDS: simulator frames on a virtual CAN bus → skin_driver →
+contact_reconstruction → a subscriber that sees traction, deflection and summary per frame."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+ROOT = Path(__file__).resolve().parents[1]
+LAYOUT = ROOT / "config" / "hexagon_patch.yaml"
+PERIOD_MS = 50
+
+
+@pytest.fixture(scope="module")
+def bundles(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from tactile_contact.build import build_layout
+
+    out = tmp_path_factory.mktemp("bundles")
+    build_layout(LAYOUT, out)
+    return out
+
+
+def run_press(context: object, bundles: Path, seconds: float) -> object:
+    from tactile_contact.demo import Observed, observer_node
+    from tactile_contact.nodes.bringup import GraphConfig, running_graph
+
+    seen = Observed()
+    config = GraphConfig(
+        layout=str(LAYOUT),
+        bundles_dir=str(bundles),
+        channel=f"test_pipeline_{time.monotonic_ns()}",
+        scenario="press",
+        # Every frame must come out: let the node catch up instead of keeping only the newest.
+        reconstruction={"queue_depth": 100},
+        simulator={
+            "period_ms": PERIOD_MS,
+            "cycle_s": seconds,
+            "loop": False,
+            # 0.15 count RMS after the shift: the noise of the accuracy study
+            # (docs/reconstruction.md).
+            "noise_cdc": 0.6,
+            "start_delay_s": 1.0,
+            "force_n": 2.0,
+            "indenter_radius_m": 0.006,
+        },
+    )
+    observer = observer_node(context, "hexagon", seen)
+    with running_graph(config, context, extra_nodes=(observer,)) as executor:
+        end = time.monotonic() + 1.0 + seconds + 0.5
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.02)
+        # Let the last frames through the pipeline.
+        settle = time.monotonic() + 1.0
+        while time.monotonic() < settle and len(seen.contact) < len(seen.taxels):
+            executor.spin_once(timeout_sec=0.02)
+    observer.destroy_node()
+    return seen
+
+
+def test_every_frame_gets_all_outputs_and_the_force_is_right(
+    ros_context: object, bundles: Path
+) -> None:
+    from tactile_contact.demo import match
+
+    seen = run_press(ros_context, bundles, seconds=3.0)
+    taxel_stamps = set(seen.taxels)
+    assert len(taxel_stamps) >= 0.8 * (4.0 / (PERIOD_MS * 1e-3)), "driver published too little"
+    # Every taxel frame produced a summary, a traction image and a deflection image with its
+    # stamp (the input keeps the newest frame only, so a slow machine may drop a few; none is
+    # allowed to be dropped here at 20 Hz).
+    missing = {
+        name: len(taxel_stamps - set(getattr(seen, name)))
+        for name in ("contact", "traction", "deflection")
+    }
+    assert all(m <= 0.02 * len(taxel_stamps) for m in missing.values()), missing
+    for stamp in list(seen.contact)[:50]:
+        field = seen.traction[stamp]
+        assert np.isfinite(field).all() and np.isfinite(seen.deflection[stamp]).all()
+    geometry = seen.geometry["traction"]
+    assert (geometry.height, geometry.width) == next(iter(seen.traction.values())).shape
+
+    # The node adds no error of its own: each summary is what the core computes from the ΔC
+    # the driver published for that frame.
+    from tactile_contact import Reconstructor
+
+    recon = Reconstructor.from_bundle(bundles / "hexagon")
+    for stamp in sorted(seen.contact)[::5]:
+        if stamp in seen.taxels:
+            ref = recon.solve(seen.taxels[stamp])
+            assert seen.contact[stamp].total_force == pytest.approx(ref.total_force, rel=1e-6)
+
+    report = match(seen, tolerance=0.5 * PERIOD_MS * 1e-3)
+    loaded = report.force_true >= 0.5
+    assert loaded.sum() >= 20, "the press must be seen"
+    force_err = (
+        np.abs(report.force_est[loaded] - report.force_true[loaded]) / report.force_true[loaded]
+    )
+    cop_err = np.linalg.norm(report.cop_est[loaded] - report.cop_true[loaded], axis=1)
+    # Accuracy through the whole chain (simulated frames, noise, 8-bit quantisation, baseline
+    # tracking) for a 12 mm sphere over a taxel: issue 7's targets, 10 % and 1 mm (median).
+    assert np.median(force_err) <= 0.10, f"median force error {np.median(force_err):.3f}"
+    assert np.median(cop_err) <= 1e-3, f"median CoP error {np.median(cop_err) * 1e3:.2f} mm"
+    # Idle frames before the press (almost all) cost no solve; noise rarely crosses the contact
+    # threshold and then gives a few mN. After the release the
+    # baseline tracker needs up to release_s (1 s) to settle, so only small residuals remain.
+    before = report.stamps < report.stamps[report.force_true > 0][0]
+    assert before.sum() >= 5
+    assert np.mean(report.force_est[before] == 0) >= 0.8, "idle frames must mostly skip the solve"
+    assert np.all(np.abs(report.force_est[before]) <= 0.02)
+    after = (report.force_true == 0) & ~before
+    assert np.all(np.abs(report.force_est[after]) <= 0.2 * report.force_true.max())
