@@ -235,11 +235,17 @@ def plot(report: DemoReport, seen: Observed, layout: Path, patch: str, path: Pat
     common = sorted(set(seen.traction) & set(seen.deflection) & set(seen.taxels))
     fig = plt.figure(figsize=(15, 8.5), layout="constrained")
     grid = fig.add_gridspec(2, 3, height_ratios=[1.25, 1])
-    if common and report.stamps.size:
-        loaded = report.stamps[np.argmax(report.force_est)]
-        t = min(common, key=lambda s: abs(s - loaded))
-        i = int(np.argmin(np.abs(report.stamps - t)))
+    maps = []
+    if common and report.stamps.size and report.loaded().any():
+        # A representative frame, not the best one: among frames at full load, the one with the
+        # median force error.
+        full = np.nonzero(report.force_true >= 0.99 * report.force_true.max())[0]
+        full = [j for j in full if min(abs(s - report.stamps[j]) for s in common) < 1e-6]
+        err = np.abs(report.force_est[full] - report.force_true[full])
+        i = int(full[np.argsort(err)[len(err) // 2]]) if full else int(np.argmax(report.force_true))
+        t = min(common, key=lambda s: abs(s - report.stamps[i]))
         ax = fig.add_subplot(grid[0, 0])
+        maps.append(ax)
         dc = seen.taxels[t] * 1e15
         lim = max(np.abs(dc).max(), 1e-3)
         sc = ax.scatter(xy[:, 0], xy[:, 1], c=dc, cmap="RdBu_r", vmin=-lim, vmax=lim, s=90)
@@ -250,6 +256,7 @@ def plot(report: DemoReport, seen: Observed, layout: Path, patch: str, path: Pat
         ):
             field_ = getattr(seen, name)[t] * scale
             ax = fig.add_subplot(grid[0, k])
+            maps.append(ax)
             kw = {"vmin": 0} if name == "traction" else {"vmin": -np.abs(field_).max()}
             if name == "deflection":
                 kw["vmax"] = np.abs(field_).max()
@@ -264,10 +271,13 @@ def plot(report: DemoReport, seen: Observed, layout: Path, patch: str, path: Pat
             ax.plot(*(report.cop_true[i] * 1e3), "w+", ms=14, mew=2, label="true CoP")
             ax.plot(*(report.cop_est[i] * 1e3), "rx", ms=10, mew=2, label="estimated CoP")
             ax.scatter(xy[:, 0], xy[:, 1], s=4, c="k")
-            ax.set_title(f"{name} at t = {t - report.stamps[0]:.2f} s")
+            ax.set_title(
+                f"{name} at t = {t - report.stamps[0]:.2f} s "
+                f"(F {report.force_est[i]:.2f} N, true {report.force_true[i]:.2f} N)"
+            )
             ax.legend(loc="lower right", fontsize=7)
-        for a in fig.axes:
-            a.set_aspect("equal")
+        for a in maps:
+            a.set_aspect("equal", adjustable="box")
             a.set_xlabel("x [mm]")
             a.set_ylabel("y [mm]")
     ts = report.stamps - (report.stamps[0] if report.stamps.size else 0)
@@ -282,7 +292,7 @@ def plot(report: DemoReport, seen: Observed, layout: Path, patch: str, path: Pat
     ax.plot(report.cop_true[m, 0] * 1e3, report.cop_true[m, 1] * 1e3, "k-", label="true CoP path")
     ax.plot(report.cop_est[m, 0] * 1e3, report.cop_est[m, 1] * 1e3, "r.", ms=3, label="estimated")
     ax.scatter(xy[:, 0], xy[:, 1], s=4, c="grey")
-    ax.set_aspect("equal")
+    ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [mm]")
     ax.set_ylabel("y [mm]")
     ax.legend(fontsize=7)
