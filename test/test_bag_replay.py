@@ -1,0 +1,107 @@
+"""Regression against a recorded session: replaying the shipped bag's taxel arrays into a fresh
+contact_reconstruction node reproduces the summaries recorded live.
+
+The bag (test/data/hexagon_session, MCAP) was recorded with
+``make test-data`` (``tactile-contact bringup --simulate --record …``): simulator → driver →
+reconstruction on the default patch, topics taxels, contact and contact_truth. If the
+reconstruction changes on purpose, re-record it with the same command.
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from test.rosutil import spin_until
+
+pytestmark = pytest.mark.ros
+
+ROOT = Path(__file__).resolve().parents[1]
+BAG = ROOT / "test" / "data" / "hexagon_session"
+LAYOUT = ROOT / "config" / "hexagon_patch.yaml"
+
+
+def _stamp(header: object) -> int:
+    return header.stamp.sec * 1_000_000_000 + header.stamp.nanosec  # type: ignore[attr-defined]
+
+
+def test_shipped_bag_is_small_and_complete() -> None:
+    from tactile_contact.bag import read_messages
+
+    size = sum(p.stat().st_size for p in BAG.rglob("*") if p.is_file())
+    assert size < 400_000, f"shipped bag is {size} bytes"
+    topics = {t for t, _, _ in read_messages(BAG)}
+    assert topics == {"/hexagon/taxels", "/hexagon/contact", "/hexagon/contact_truth"}
+
+
+def test_replay_reproduces_the_recorded_summaries(ros_context: object, tmp_path: Path) -> None:
+    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from tactile_contact.bag import BagPlayer, read_messages
+    from tactile_contact.build import build_layout
+    from tactile_contact.msg import ContactState
+    from tactile_contact.nodes.contact_reconstruction import ContactReconstructionNode
+
+    build_layout(LAYOUT, tmp_path)
+    recorded = {_stamp(m.header): m for t, _, m in read_messages(BAG, ["/hexagon/contact"])}
+    n_taxels = len(read_messages(BAG, ["/hexagon/taxels"]))
+    assert len(recorded) >= 0.9 * n_taxels, "the live run summarised (almost) every frame"
+
+    node = ContactReconstructionNode(
+        context=ros_context,
+        parameter_overrides=[
+            Parameter("bundles_dir", value=str(tmp_path)),
+            Parameter("queue_depth", value=1000),  # a replay must process every frame
+        ],
+    )
+    probe = Node("replay_probe", context=ros_context)
+    got: dict[int, ContactState] = {}
+    probe.create_subscription(
+        ContactState,
+        "/hexagon/contact",
+        lambda m: got.__setitem__(_stamp(m.header), m),
+        QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT),
+    )
+    player = BagPlayer(probe, BAG, topics=["/hexagon/taxels"], rate=3.0)
+    executor = MultiThreadedExecutor(num_threads=3, context=ros_context)
+    executor.add_node(node)
+    executor.add_node(probe)
+    assert spin_until(
+        executor, lambda: player.publishers["/hexagon/taxels"].get_subscription_count() > 0
+    )
+    thread = threading.Thread(target=player.play, daemon=True)
+    thread.start()
+    assert spin_until(executor, lambda: not thread.is_alive(), timeout_s=60.0)
+    spin_until(executor, lambda: len(got) >= len(recorded), timeout_s=3.0)
+    executor.shutdown()
+    node.destroy_node()
+    probe.destroy_node()
+
+    common = sorted(set(got) & set(recorded))
+    assert len(common) >= 0.95 * len(recorded), (len(common), len(recorded))
+    worst = {"force": 0.0, "cop": 0.0, "area": 0.0, "peak": 0.0}
+    for stamp in common:
+        a, b = got[stamp], recorded[stamp]
+        assert a.in_contact == b.in_contact and a.solver == b.solver, stamp
+        # Same matrices, same inputs: equal up to float32 rounding of the online product.
+        scale = max(abs(b.total_force), 1e-3)
+        worst["force"] = max(worst["force"], abs(a.total_force - b.total_force) / scale)
+        worst["cop"] = max(
+            worst["cop"],
+            np.hypot(
+                a.center_of_pressure.x - b.center_of_pressure.x,
+                a.center_of_pressure.y - b.center_of_pressure.y,
+            ),
+        )
+        worst["area"] = max(worst["area"], abs(a.contact_area - b.contact_area))
+        worst["peak"] = max(
+            worst["peak"], abs(a.peak_pressure - b.peak_pressure) / max(b.peak_pressure, 1.0)
+        )
+    assert worst["force"] <= 1e-4 and worst["cop"] <= 1e-6 and worst["peak"] <= 1e-4, worst
+    assert worst["area"] <= 2e-6, worst  # at most about half a 2 mm cell flips at the threshold
