@@ -28,6 +28,7 @@ setup(
         "pyyaml>=6",
         "python-can>=4.3",
         "tqdm>=4.60",
+        "threadpoolctl>=3.1",
     ],
     extras_require={
         "demo": ["matplotlib>=3.7"],

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
+import multiprocessing
 import sys
 import time
 from pathlib import Path
@@ -211,7 +212,10 @@ def build_layout(
                 if bar is not None:
                     bar.update(1)
         else:
-            with cf.ProcessPoolExecutor(max_workers=workers) as pool:
+            # forkserver, not fork: the caller may be a ROS process whose DDS threads a forked
+            # child would inherit in an undefined state.
+            ctx = multiprocessing.get_context("forkserver")
+            with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
                 futs = {pool.submit(_build_one, p, str(out / p.name)): p for p in todo}
                 for fut in cf.as_completed(futs):
                     name, _ = fut.result()

@@ -65,7 +65,7 @@ def _bringup(args: argparse.Namespace) -> int:
 def _replay(args: argparse.Namespace) -> int:
     import rclpy
     from rclpy.context import Context
-    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.executors import SingleThreadedExecutor
 
     from tactile_contact.bag import BagPlayer
     from tactile_contact.nodes.contact_reconstruction import ContactReconstructionNode
@@ -79,7 +79,7 @@ def _replay(args: argparse.Namespace) -> int:
         )
         player_node = rclpy.create_node("tactile_contact_player", context=context)
         player = BagPlayer(player_node, args.bag, topics=args.topics or None, rate=args.rate)
-        executor = MultiThreadedExecutor(context=context)
+        executor = SingleThreadedExecutor(context=context)
         executor.add_node(recon)
         executor.add_node(player_node)
         thread = threading.Thread(target=player.play, daemon=True)

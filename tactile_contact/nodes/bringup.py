@@ -1,4 +1,4 @@
-"""The whole skin graph in one process on a multi-threaded executor, with plain rclpy.
+"""The whole skin graph in one process on one executor, with plain rclpy.
 
 For machines without ``launch`` (``ros2 launch`` needs launch_ros): the same nodes and
 parameters as ``launch/skin.launch.py``. In one process, python-can's ``virtual`` interface
@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -79,11 +79,16 @@ def make_nodes(config: GraphConfig, context: Context) -> list[Node]:
 
 @contextmanager
 def running_graph(
-    config: GraphConfig, context: Context, extra_nodes: tuple[Node, ...] = (), threads: int = 4
-) -> Iterator[MultiThreadedExecutor]:
-    """Create the graph, yield its executor (spin it yourself), destroy everything after."""
+    config: GraphConfig, context: Context, extra_nodes: tuple[Node, ...] = ()
+) -> Iterator[SingleThreadedExecutor]:
+    """Create the graph, yield its executor (spin it yourself), destroy everything after.
+
+    One executor thread: the driver and the simulator receive and send in threads of their
+    own, and a multi-threaded executor driven by ``spin_once`` re-polls entities whose callback
+    is still queued (measured: a busy core for nothing).
+    """
     nodes = make_nodes(config, context)
-    executor = MultiThreadedExecutor(num_threads=threads, context=context)
+    executor = SingleThreadedExecutor(context=context)
     for node in (*nodes, *extra_nodes):
         executor.add_node(node)
     try:

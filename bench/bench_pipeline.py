@@ -1,0 +1,228 @@
+"""End-to-end latency and CPU share of the pipeline for 1, 6 and 24 patches at 50 Hz.
+
+Each patch is a copy of the default hexagon (6 triangles, its own CAN addresses). One patch is
+pressed by a sliding 12 mm sphere, the others are idle, as on a robot where one contact touches
+a large skin. In one process and one run, side by side:
+
+- ``publish only``: rclpy publishing the same messages (a TaxelArray and a ContactState per
+  patch per period) with no computation, to a subscriber — the floor of any ROS pipeline;
+- ``simulator``: the skin simulators writing CAN frames to a virtual bus (the load generator);
+- ``pipeline``: simulators → skin_driver → contact_reconstruction → a summary subscriber.
+
+Latency is CAN receive → ContactState published (the node's ``latency`` field: the stamp is
+the receive time of the frame completing the reading). CPU share is process CPU time over wall
+time (100 % = one core); pipeline minus simulator is what the driver and reconstruction cost.
+
+    python bench/bench_pipeline.py [--quick] [--seconds S]
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+LAYOUT = ROOT / "config" / "hexagon_patch.yaml"
+PERIOD_MS = 20  # 50 Hz
+
+
+def multi_patch_layout(n: int, folder: Path) -> Path:
+    """A layout of ``n`` hexagon patches on distinct CAN addresses (frames patch_<k>)."""
+    doc = yaml.safe_load(LAYOUT.read_text())
+    base = doc["patches"][0]
+    patches = []
+    for k in range(n):
+        p = copy.deepcopy(base)
+        p["name"] = f"patch{k:02d}"
+        p["frame_id"] = f"skin_patch{k:02d}"
+        for j, m in enumerate(p["modules"]):
+            m["board"] = k // 2
+            m["triangle"] = (k % 2) * 6 + j
+        patches.append(p)
+    doc["patches"] = patches
+    path = folder / f"layout_{n}.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def cpu_share(run: object, seconds: float) -> float:
+    """Process CPU time / wall time while ``run(seconds)`` executes."""
+    c0, w0 = time.process_time(), time.monotonic()
+    run(seconds)  # type: ignore[operator]
+    return (time.process_time() - c0) / (time.monotonic() - w0)
+
+
+def spin_for(executor: object, seconds: float) -> None:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        executor.spin_once(timeout_sec=0.01)  # type: ignore[attr-defined]
+
+
+def run_publish_only(n: int, seconds: float) -> float:
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+
+    from tactile_contact.msg import ContactState, TaxelArray
+    from tactile_contact.nodes.common import SENSOR_QOS
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = Node("publish_only", context=ctx)
+    sink = Node("sink", context=ctx)
+    pubs = []
+    for k in range(n):
+        pubs.append(
+            (
+                node.create_publisher(TaxelArray, f"patch{k:02d}/taxels", SENSOR_QOS),
+                node.create_publisher(ContactState, f"patch{k:02d}/contact", SENSOR_QOS),
+            )
+        )
+        sink.create_subscription(ContactState, f"patch{k:02d}/contact", lambda m: None, SENSOR_QOS)
+    taxels = TaxelArray(
+        patch="p", taxel_ids=list(range(72)), delta_c=[1e-15] * 72, raw=[240] * 72, status=[0] * 72
+    )
+    contact = ContactState(patch="p", total_force=1.0)
+
+    def tick() -> None:
+        for pt, pc in pubs:
+            pt.publish(taxels)
+            pc.publish(contact)
+
+    node.create_timer(PERIOD_MS * 1e-3, tick)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    ex.add_node(sink)
+    spin_for(ex, 0.5)
+    share = cpu_share(lambda s: spin_for(ex, s), seconds)
+    ex.shutdown()
+    rclpy.try_shutdown(context=ctx)
+    return share
+
+
+def run_graph(n: int, layout: Path, bundles: Path, seconds: float, full: bool) -> dict:
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from tactile_contact.msg import ContactState
+    from tactile_contact.nodes.common import SENSOR_QOS
+    from tactile_contact.nodes.contact_reconstruction import ContactReconstructionNode
+    from tactile_contact.nodes.skin_driver import SkinDriver
+    from tactile_contact.nodes.skin_simulator import SkinSimulatorNode
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    channel = f"bench_{time.monotonic_ns()}"
+    nodes: list = []
+    for k in range(n):
+        nodes.append(
+            SkinSimulatorNode(
+                f"sim{k:02d}",
+                context=ctx,
+                parameter_overrides=[
+                    Parameter("layout", value=str(layout)),
+                    Parameter("patch", value=f"patch{k:02d}"),
+                    Parameter("channel", value=channel),
+                    Parameter("scenario", value="sweep" if k == 0 else "idle"),
+                    Parameter("period_ms", value=PERIOD_MS),
+                    Parameter("start_delay_s", value=0.5),
+                    Parameter("cycle_s", value=4.0),
+                    Parameter("noise_cdc", value=0.6),
+                ],
+            )
+        )
+    latencies: list[float] = []
+    if full:
+        nodes.append(
+            SkinDriver(
+                context=ctx,
+                parameter_overrides=[
+                    Parameter("layout", value=str(layout)),
+                    Parameter("interface", value="virtual"),
+                    Parameter("channel", value=channel),
+                    Parameter("period_ms", value=PERIOD_MS),
+                    Parameter("max_wait_ms", value=float(PERIOD_MS)),
+                ],
+            )
+        )
+        nodes.append(
+            ContactReconstructionNode(
+                context=ctx, parameter_overrides=[Parameter("bundles_dir", value=str(bundles))]
+            )
+        )
+        sink = Node("sink", context=ctx)
+        for k in range(n):
+            sink.create_subscription(
+                ContactState,
+                f"patch{k:02d}/contact",
+                lambda m: latencies.append(m.latency) if m.in_contact else None,
+                SENSOR_QOS,
+            )
+        nodes.append(sink)
+    ex = SingleThreadedExecutor(context=ctx)
+    for node in nodes:
+        ex.add_node(node)
+    spin_for(ex, 1.5)  # calibration, start-up
+    latencies.clear()
+    share = cpu_share(lambda s: spin_for(ex, s), seconds)
+    out = {"cpu": share}
+    if full:
+        recon = nodes[-2]
+        frames = sum(p.stats.frames for p in recon.pipelines.values())
+        solved = sum(p.stats.solved for p in recon.pipelines.values())
+        out |= {"latency": np.asarray(latencies), "frames": frames, "solved": solved}
+    ex.shutdown()
+    for node in nodes:
+        node.destroy_node()
+    rclpy.try_shutdown(context=ctx)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="1 and 6 patches, 3 s each")
+    ap.add_argument("--seconds", type=float, default=6.0)
+    args = ap.parse_args()
+    sys.path.insert(0, str(ROOT))
+    from tactile_contact.build import build_layout
+
+    counts = (1, 6) if args.quick else (1, 6, 24)
+    seconds = 3.0 if args.quick else args.seconds
+    tmp = Path(tempfile.mkdtemp(prefix="bench_pipeline_"))
+    print(f"{PERIOD_MS} ms period (50 Hz), one patch pressed by a sliding sphere, the rest idle")
+    header = (
+        f"{'patches':>7} | {'publish only':>12} | {'simulator':>9} | {'pipeline':>8} | "
+        f"{'driver+recon':>12} | {'ratio':>6} | {'latency med ms':>14} | {'p99 ms':>7} | frames"
+    )
+    print(header)
+    for n in counts:
+        layout = multi_patch_layout(n, tmp)
+        bundles = tmp / f"bundles_{n}"
+        build_layout(layout, bundles)
+        pub = run_publish_only(n, seconds)
+        sim = run_graph(n, layout, bundles, seconds, full=False)["cpu"]
+        full = run_graph(n, layout, bundles, seconds, full=True)
+        own = full["cpu"] - sim
+        lat = full["latency"] * 1e3
+        med = np.median(lat) if lat.size else float("nan")
+        p99 = np.percentile(lat, 99) if lat.size else float("nan")
+        print(
+            f"{n:7d} | {pub * 100:11.1f}% | {sim * 100:8.1f}% | {full['cpu'] * 100:7.1f}% | "
+            f"{own * 100:11.1f}% | {own / max(pub, 1e-9):6.1f} | {med:14.2f} | {p99:7.2f} | "
+            f"{full['frames']} ({full['solved']} solved)"
+        )
+
+
+if __name__ == "__main__":
+    main()
