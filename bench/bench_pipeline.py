@@ -6,12 +6,13 @@ a large skin. In one process and one run, side by side:
 
 - ``publish only``: rclpy publishing the same messages (a TaxelArray and a ContactState per
   patch per period) with no computation, to a subscriber — the floor of any ROS pipeline;
-- ``simulator``: the skin simulators writing CAN frames to a virtual bus (the load generator);
+- ``frames in``: sending precomputed module frames of every patch on a virtual CAN bus at
+  50 Hz (the load generator; the physics is simulated before timing);
 - ``pipeline``: simulators → skin_driver → contact_reconstruction → a summary subscriber.
 
 Latency is CAN receive → ContactState published (the node's ``latency`` field: the stamp is
 the receive time of the frame completing the reading). CPU share is process CPU time over wall
-time (100 % = one core); pipeline minus simulator is what the driver and reconstruction cost.
+time (100 % = one core); pipeline minus frames-in is what the driver and reconstruction cost.
 
     python bench/bench_pipeline.py [--quick] [--seconds S]
 """
@@ -20,11 +21,14 @@ from __future__ import annotations
 
 import argparse
 import copy
+import itertools
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
+import can
 import numpy as np
 import yaml
 
@@ -50,6 +54,64 @@ def multi_patch_layout(n: int, folder: Path) -> Path:
     path = folder / f"layout_{n}.yaml"
     path.write_text(yaml.safe_dump(doc))
     return path
+
+
+def precompute_frames(layout: Path, n: int, seconds: float) -> list[list[can.Message]]:
+    """Module frames of every patch per period: patch 0 pressed by a sliding 12 mm sphere,
+    the others idle. Computed before timing so the load generator costs only the sending."""
+    from tactile_contact.indenters import HertzSphere
+    from tactile_contact.layout import load_layout
+    from tactile_contact.nodes.skin_simulator import scenario_indentation
+    from tactile_contact.simulator import simulator_for_patch
+
+    patches = load_layout(layout).patches
+    count = int(seconds / (PERIOD_MS * 1e-3))
+    per_patch = []
+    for k, patch in enumerate(patches[:n]):
+        sim = simulator_for_patch(
+            patch, fine_cell=5e-4, realtime=True, period_s=PERIOD_MS * 1e-3, noise_cdc=0.6, seed=k
+        )
+        ind = scenario_indentation("sweep", patch, HertzSphere(6e-3), 2.0, 4.0)
+
+        def period(
+            j: int, sim: object = sim, ind: object = ind, pressed: bool = k == 0
+        ) -> list[can.Message]:
+            # 1 s unloaded first (the driver calibrates), then the 4 s sweep, repeated.
+            t = j * PERIOD_MS * 1e-3
+            if not pressed or t < 1.0:
+                return sim.period(None, t).messages  # type: ignore[attr-defined]
+            return sim.period(ind, (t - 1.0) % 4.0).messages  # type: ignore[attr-defined]
+
+        per_patch.append([period(j) for j in range(count)])
+    return [list(itertools.chain.from_iterable(p[j] for p in per_patch)) for j in range(count)]
+
+
+class FrameSender:
+    """Sends precomputed periods on a virtual bus at 50 Hz, stamped when sent (like a bus)."""
+
+    def __init__(self, frames: list[list[can.Message]], channel: str) -> None:
+        self.frames = frames
+        self.bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        t0 = time.monotonic()
+        for j, period in enumerate(itertools.cycle(self.frames)):
+            if self._stop.wait(max(0.0, t0 + j * PERIOD_MS * 1e-3 - time.monotonic())):
+                return
+            now = time.time()
+            for msg in period:
+                msg.timestamp = now
+                self.bus.send(msg)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self.bus.shutdown()
 
 
 def cpu_share(run: object, seconds: float) -> float:
@@ -108,7 +170,9 @@ def run_publish_only(n: int, seconds: float) -> float:
     return share
 
 
-def run_graph(n: int, layout: Path, bundles: Path, seconds: float, full: bool) -> dict:
+def run_graph(
+    n: int, layout: Path, bundles: Path, frames: list, seconds: float, full: bool
+) -> dict:
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
@@ -119,29 +183,12 @@ def run_graph(n: int, layout: Path, bundles: Path, seconds: float, full: bool) -
     from tactile_contact.nodes.common import SENSOR_QOS
     from tactile_contact.nodes.contact_reconstruction import ContactReconstructionNode
     from tactile_contact.nodes.skin_driver import SkinDriver
-    from tactile_contact.nodes.skin_simulator import SkinSimulatorNode
 
     ctx = Context()
     rclpy.init(context=ctx)
     channel = f"bench_{time.monotonic_ns()}"
     nodes: list = []
-    for k in range(n):
-        nodes.append(
-            SkinSimulatorNode(
-                f"sim{k:02d}",
-                context=ctx,
-                parameter_overrides=[
-                    Parameter("layout", value=str(layout)),
-                    Parameter("patch", value=f"patch{k:02d}"),
-                    Parameter("channel", value=channel),
-                    Parameter("scenario", value="sweep" if k == 0 else "idle"),
-                    Parameter("period_ms", value=PERIOD_MS),
-                    Parameter("start_delay_s", value=0.5),
-                    Parameter("cycle_s", value=4.0),
-                    Parameter("noise_cdc", value=0.6),
-                ],
-            )
-        )
+    sender = FrameSender(frames, channel)
     latencies: list[float] = []
     if full:
         nodes.append(
@@ -173,6 +220,7 @@ def run_graph(n: int, layout: Path, bundles: Path, seconds: float, full: bool) -
     ex = SingleThreadedExecutor(context=ctx)
     for node in nodes:
         ex.add_node(node)
+    sender.start()
     spin_for(ex, 1.5)  # calibration, start-up
     latencies.clear()
     share = cpu_share(lambda s: spin_for(ex, s), seconds)
@@ -182,6 +230,7 @@ def run_graph(n: int, layout: Path, bundles: Path, seconds: float, full: bool) -
         frames = sum(p.stats.frames for p in recon.pipelines.values())
         solved = sum(p.stats.solved for p in recon.pipelines.values())
         out |= {"latency": np.asarray(latencies), "frames": frames, "solved": solved}
+    sender.stop()
     ex.shutdown()
     for node in nodes:
         node.destroy_node()
@@ -202,7 +251,7 @@ def main() -> None:
     tmp = Path(tempfile.mkdtemp(prefix="bench_pipeline_"))
     print(f"{PERIOD_MS} ms period (50 Hz), one patch pressed by a sliding sphere, the rest idle")
     header = (
-        f"{'patches':>7} | {'publish only':>12} | {'simulator':>9} | {'pipeline':>8} | "
+        f"{'patches':>7} | {'publish only':>12} | {'frames in':>9} | {'pipeline':>8} | "
         f"{'driver+recon':>12} | {'ratio':>6} | {'latency med ms':>14} | {'p99 ms':>7} | frames"
     )
     print(header)
@@ -211,8 +260,9 @@ def main() -> None:
         bundles = tmp / f"bundles_{n}"
         build_layout(layout, bundles)
         pub = run_publish_only(n, seconds)
-        sim = run_graph(n, layout, bundles, seconds, full=False)["cpu"]
-        full = run_graph(n, layout, bundles, seconds, full=True)
+        frames = precompute_frames(layout, n, 6.0)
+        sim = run_graph(n, layout, bundles, frames, seconds, full=False)["cpu"]
+        full = run_graph(n, layout, bundles, frames, seconds, full=True)
         own = full["cpu"] - sim
         lat = full["latency"] * 1e3
         med = np.median(lat) if lat.size else float("nan")

@@ -144,6 +144,7 @@ def build_patch(patch: PatchLayout) -> tuple[dict[str, Any], dict[str, NDArray[A
         "rcond": s.rcond,
         "tsvd_rank": s.tsvd_rank,
         "noise": s.noise,
+        "contact_threshold": s.contact_threshold,
         "nnls_method": s.nnls_method,
         "support_radius": s.support_radius,
         "seed_fraction": s.seed_fraction,

@@ -142,8 +142,11 @@ class SolverSpec:
         tikhonov: λ relative to the largest singular value of C [-].
         rcond: relative singular-value cut-off of ``pinv`` [-].
         tsvd_rank: singular values kept by ``tsvd`` (None: all of them).
-        noise: taxel compression noise [m]: contact test (|δ| above it) and the free solution's
-            non-negativity test.
+        noise: taxel compression noise [m], for the free solution's non-negativity test.
+        contact_threshold: a frame is in contact when a valid taxel's |δ| exceeds it [m]. The
+            default, 1.1e-5 m (≈ 1.05 count), ignores the ±1-count readings that a baseline
+            (a mean of quantised samples) plus noise gives an idle skin, so idle patches cost
+            no solve.
         nnls_method: ``bpp`` (block principal pivoting) or ``fista``.
         support_radius: the second NNLS pass keeps cells within this distance of the first
             pass's strong cells [m].
@@ -162,6 +165,7 @@ class SolverSpec:
     rcond: float = 1.0e-3
     tsvd_rank: int | None = None
     noise: float = 6.0e-6
+    contact_threshold: float = 1.1e-5
     nnls_method: str = "bpp"
     support_radius: float = 4.0e-3
     seed_fraction: float = 0.3
@@ -469,6 +473,7 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
         rcond=c.number(so, "rcond", sop, 1e-3, lo=0.0, lo_open=True, hi=1.0),
         tsvd_rank=c.number(so, "tsvd_rank", sop, None, lo=1, integer=True),
         noise=c.number(so, "noise", sop, 6.0e-6, lo=0.0, hi=1e-3),
+        contact_threshold=c.number(so, "contact_threshold", sop, 1.1e-5, lo=0.0, hi=1e-3),
         nnls_method=c.choice(so, "nnls_method", sop, "bpp", ("bpp", "fista")),
         support_radius=c.number(so, "support_radius", sop, 4.0e-3, lo=0.0, lo_open=True, hi=0.1),
         seed_fraction=c.number(so, "seed_fraction", sop, 0.3, lo=0.0, hi=1.0),

