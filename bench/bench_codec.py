@@ -2,7 +2,7 @@
 
 Load: 16 triangles × 100 Hz (3 200 frames/s), the issue's reference load. Everything runs in
 one process on python-can's ``virtual`` bus; the baseline of the table is the cost of
-``bus.recv()`` for the same frames, so the ratios say how much the driver core adds to what any
+``bus.recv()`` for the same frames, so the ratios say how much SkinStream adds to what any
 python-can reader pays anyway. Correctness (every reading delivered, values exact) is checked
 before the timings are printed.
 
@@ -117,10 +117,10 @@ def main() -> None:
     t_base = best_of(track, repeats)
     periods = raw.shape[0]
 
-    # The whole driver core (what the node calls per message): assemble, patch buffer,
-    # baseline, publication arrays; one patch of the 16 triangles.
-    from tactile_contact.driver import SkinDriverCore
+    # The whole ROS-free data path (what the node calls per message): assemble, gather the
+    # patch, baseline, publication arrays; one patch of the 16 triangles.
     from tactile_contact.layout import parse_layout
+    from tactile_contact.stream import SkinStream
 
     patch = parse_layout(
         {
@@ -144,10 +144,10 @@ def main() -> None:
     ).patches[0]
 
     def driver_core() -> None:
-        core = SkinDriverCore([patch])
+        stream = SkinStream([patch], period_s=1.0 / RATE_HZ)
         pubs = 0
         for m in msgs:
-            pubs += len(core.on_message(m))
+            pubs += len(stream.feed(m, now=m.timestamp))
         assert pubs == periods, pubs
 
     t_core = best_of(driver_core, repeats)
@@ -159,7 +159,7 @@ def main() -> None:
         ("decode + assemble (feed)", t_assemble * us, t_assemble / t_recv),
         ("recv + decode + assemble", t_recv_asm * us, t_recv_asm / t_recv),
         ("baseline update (per frame share)", t_base * us, t_base / t_recv),
-        ("driver core on_message (all stages)", t_core * us, t_core / t_recv),
+        ("SkinStream.feed (all stages)", t_core * us, t_core / t_recv),
     ]
     print(
         f"{n} frames = {seconds:g} s of {TRIANGLES} triangles x {RATE_HZ:g} Hz; best of {repeats}"
@@ -174,7 +174,7 @@ def main() -> None:
     total = 100 * (cpu_recv + cpu_core)
     print(
         f"CPU share of one core at {frames_per_s:.0f} frames/s: recv alone {100 * cpu_recv:.2f} %,"
-        f" driver core {100 * cpu_core:.2f} %, total {total:.2f} % (ROS publishing not included)"
+        f" SkinStream {100 * cpu_core:.2f} %, total {total:.2f} % (ROS publishing not included)"
     )
 
 

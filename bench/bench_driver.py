@@ -72,7 +72,7 @@ def thread_cpu_s(tid: int) -> float:
 
 
 def offline(path: Path, periods: int) -> dict[str, float]:
-    from tactile_contact.nodes.skin_stream import SkinStream
+    from tactile_contact.stream import SkinStream
 
     rng = np.random.default_rng(0)
     frames = [m for k in range(periods) for m in period_frames(k, rng, 0.0)]

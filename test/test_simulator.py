@@ -191,26 +191,30 @@ def test_layout_patch_through_the_forward_model() -> None:
 
 
 def test_end_to_end_held_contact_through_log_and_baseline(tmp_path: Path) -> None:
-    """Simulator → candump log → assembler → patch buffer → baseline: ΔC matches the truth
-    within quantisation, and a 120 s hold is still reported at ≥ 90 %."""
-    from tactile_contact.baseline import BaselineTracker
-    from tactile_contact.driver import PatchBuffer
+    """Simulator → candump log → SkinStream (assembler, patch gathering, baseline): ΔC matches
+    the truth within quantisation, and a 120 s hold is still reported at ≥ 90 %."""
+    from tactile_contact.baseline import STATUS_STALE, BaselineConfig
+    from tactile_contact.layout import parse_layout
+    from tactile_contact.stream import SkinStream
 
     sim = _sim(seed=11, period_s=0.05, noise_cdc=1.5, rest_spread_cdc=8, drift_cdc_per_s=0.01)
     ind = Indentation.press("sphere", 2.0, tuple(XY[3]), start_s=3.0, ramp_s=0.3, hold_s=120.0)
     path = tmp_path / "hold.log"
     truths = write_log(path, sim.periods(ind, 126.0))
-    asm = PeriodAssembler()
-    buf = PatchBuffer(MODULES)
-    tracker = BaselineTracker(len(XY), positions=XY)
+    mods = [
+        {"type": "roboskin12", "board": b, "triangle": t, "position": [0.03 * i, 0.0]}
+        for i, (b, t) in enumerate(MODULES)
+    ]
+    layout = {"schema_version": 1, "patches": [{"name": "p", "frame_id": "p", "modules": mods}]}
+    patch = parse_layout(layout).patches[0]
+    assert np.allclose(patch.channel_xy(), XY)
+    stream = SkinStream([patch], baseline=BaselineConfig(), period_s=0.05)
     results = []
     for m in can.LogReader(path):
-        r = asm.feed(m)
-        if r is not None:
-            buf.put(r)
-            if buf.complete:
-                raw, fresh, stamp = buf.take()
-                results.append((stamp, tracker.update(raw, stamp, fresh=fresh)))
+        for f in stream.feed(m, now=m.timestamp):  # replayed: receive time is the clock
+            assert not np.any(np.frombuffer(f.status, np.uint8) & STATUS_STALE)
+            results.append((f.stamp, f))
+    asm = stream.assembler
     assert len(results) == len(truths) and asm.counters.rejected == 0
     lsb = SensorParams().value_count_farad
     i = 3

@@ -15,8 +15,8 @@ import pytest
 from tactile_contact import baseline as bl
 from tactile_contact import codec
 from tactile_contact.layout import load_layout
-from tactile_contact.nodes.skin_stream import BusErrorPolicy, ReplayBus, SkinStream
 from tactile_contact.sensor import value_count_farad
+from tactile_contact.stream import BusErrorPolicy, ReplayBus, SkinStream
 
 LAYOUT = Path(__file__).resolve().parents[1] / "config" / "hexagon_patch.yaml"
 P = 0.02  # period [s]
@@ -206,3 +206,138 @@ def test_bus_error_policy_asks_for_a_reconnect_after_consecutive_errors() -> Non
 def test_invalid_arguments_are_rejected(bad: dict) -> None:
     with pytest.raises(ValueError, match=next(iter(bad))):
         make_stream(**bad)
+
+
+# -- On a virtual bus fed by the simulator (ported from the former driver-core tests) ----------
+_MIXED = {
+    "schema_version": 1,
+    "patches": [
+        {
+            "name": "palm",
+            "frame_id": "palm_skin",
+            "modules": [
+                {"type": "roboskin12", "board": 1, "triangle": 0, "position": [0.0, 0.0]},
+                {
+                    "type": "roboskin12",
+                    "board": 1,
+                    "triangle": 1,
+                    "position": [0.0115, 0.0066],
+                    "rotation_deg": 180,
+                },
+                {"type": "icub_v2_10pad", "board": 2, "triangle": 3, "position": [0.04, 0.0]},
+            ],
+        }
+    ],
+}
+
+
+def _mixed_patch():  # two ROBOSKIN triangles and an iCub 10-pad one (thermal pads disabled)
+    from tactile_contact.layout import parse_layout
+
+    return parse_layout(_MIXED).patches[0]
+
+
+def test_delta_c_through_a_virtual_bus_matches_the_simulated_truth() -> None:
+    import uuid
+
+    from tactile_contact.indenters import HertzSphere
+    from tactile_contact.sensor import SensorParams
+    from tactile_contact.simulator import Indentation, simulator_for_patch
+
+    patch = _mixed_patch()
+    sim = simulator_for_patch(patch, seed=4, noise_cdc=1.0, rest_spread_cdc=6, period_s=0.05)
+    xy = patch.channel_xy()
+    ind = Indentation.press(
+        HertzSphere(6e-3), 1.5, tuple(xy[3]), start_s=1.5, ramp_s=0.2, hold_s=2.0
+    )
+    s = SkinStream([patch], baseline=bl.BaselineConfig(calibration_samples=20), period_s=0.05)
+    channel = f"stream-{uuid.uuid4().hex}"
+    outs, truths = [], []
+    with (
+        can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as tx,
+        can.Bus(interface="virtual", channel=channel) as rx,
+    ):
+        for p in sim.periods(ind, 3.5):
+            for m in p.messages:
+                tx.send(m)
+            truths.append(p.truth)
+            while (m := rx.recv(timeout=0.0)) is not None:
+                outs += s.feed(m, now=m.timestamp)
+    assert len(outs) == len(truths) == 70
+    assert all(o.patch == "palm" and o.frame_id == "palm_skin" for o in outs)
+    assert outs[0].taxel_ids[0] == (1 << 8) and outs[0].taxel_ids[-1] == (2 << 8 | 3 << 4 | 11)
+    lsb = SensorParams().value_count_farad
+    for o, tr in zip(outs[25:], truths[25:], strict=True):
+        st = np.frombuffer(o.status, np.uint8)
+        assert o.stamp == pytest.approx(tr.t, abs=0.005)
+        ok = (st & bl.STATUS_DISABLED) == 0
+        # Noise 1 CDC count + rest offsets learnt by calibration: within 1.5 counts.
+        assert np.all(np.abs(o.delta_c[ok] - tr.delta_c[ok]) <= 1.5 * lsb)
+    hold = outs[50]
+    st = np.frombuffer(hold.status, np.uint8)
+    assert st[3] & bl.STATUS_CONTACT and hold.delta_c[3] > 3 * lsb
+    pads = [24 + 6, 24 + 10]
+    assert np.all(st[pads] & bl.STATUS_DISABLED) and np.all(hold.delta_c[pads] == 0)
+
+
+def test_silent_module_among_garbage_keeps_the_good_modules_published() -> None:
+    import random
+
+    from tactile_contact.simulator import simulator_for_patch
+
+    patch = _mixed_patch()
+    sim = simulator_for_patch(patch, seed=5, period_s=0.05)
+    s = SkinStream(
+        [patch],
+        baseline=bl.BaselineConfig(calibration_samples=5),
+        period_s=0.05,
+        max_wait_s=0.03,
+        module_timeout_s=0.1,
+    )
+    rng = random.Random(9)
+    outs, n_periods = [], 0
+    for p in sim.periods(None, 3.0):
+        n_periods += 1
+        for m in p.messages:
+            if not (1.0 <= p.t < 2.0 and (m.arbitration_id & 0xFF) == 0x23):  # b2t3 silent
+                outs += s.feed(m, now=p.t)
+            for _ in range(3):
+                cid = rng.choice([0x000, 0x123, 0x412, 0x455, 0x7FF])
+                data = bytes(rng.randrange(256) for _ in range(rng.randrange(9)))
+                g = can.Message(arbitration_id=cid, data=data, is_extended_id=False, timestamp=p.t)
+                outs += s.feed(g, now=p.t)
+        outs += s.poll(p.t + 0.04)
+    # One publication per period: no complete reading lost, the good modules never held up.
+    # No module reading lost nor published twice; the good modules are never held up. The
+    # returning module's first reading comes after its patch was published, so it goes alone.
+    stale = [np.frombuffer(o.status, np.uint8) & bl.STATUS_STALE for o in outs]
+    assert sum(int(np.sum(st[::12] == 0)) for st in stale) == 3 * n_periods - 20
+    assert len(outs) == n_periods + 1 == 61
+    during = [st for o, st in zip(outs, stale, strict=True) if 1.01 < o.stamp < 1.99]
+    after = [st for o, st in zip(outs, stale, strict=True) if o.stamp > 2.01]
+    assert len(during) >= 18 and len(after) >= 18
+    assert all(np.all(st[24:]) and not np.any(st[:24]) for st in during)
+    assert all(not np.any(st) for st in after)
+    c = s.assembler.counters
+    assert c.rejected > 0 and c.readings == 3 * n_periods - 20
+
+
+def test_out_of_range_and_module_error_reach_the_status() -> None:
+    s = make_stream()
+    feed_period(s, 0)
+    out = []
+    for tri in range(M):
+        kw = {"oor_mask": 0x1, "error_flags": codec.ERROR_I2C} if tri == 2 else {}
+        msgs = codec.reading_messages(0, tri, [240] * 12, timestamp=100.0 + P + tri * 1e-4, **kw)
+        for m in msgs:
+            out += s.feed(m, now=P + tri * 1e-4)
+    (f,) = out
+    st = np.frombuffer(f.status, np.uint8)
+    assert st[24] & bl.STATUS_OUT_OF_RANGE and not st[25] & bl.STATUS_OUT_OF_RANGE
+    assert not np.any(st[:24] & bl.STATUS_OUT_OF_RANGE)
+
+
+def test_a_module_in_two_patches_is_rejected() -> None:
+    p = load_layout(LAYOUT).patches[0]
+    with pytest.raises(ValueError, match="two patches"):
+        SkinStream([p, p])

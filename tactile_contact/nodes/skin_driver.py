@@ -17,7 +17,7 @@ most every few seconds, and ``reconnect_after_errors`` consecutive errors close 
 bus; bad frames are counted per reason by the assembler.
 
 The ROS-free part (bus opening, log replay, gathering module readings into patch messages)
-lives in :mod:`tactile_contact.nodes.skin_stream`.
+lives in :mod:`tactile_contact.stream`.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from tactile_contact.baseline import BaselineConfig
 from tactile_contact.layout import load_layout
 from tactile_contact.msg import TaxelArray
 from tactile_contact.nodes import common as cm
-from tactile_contact.nodes.skin_stream import (
+from tactile_contact.stream import (
     BusErrorPolicy,
     PatchFrame,
     ReplayBus,
