@@ -38,7 +38,7 @@ def test_shipped_bag_is_small_and_complete() -> None:
 
 
 def test_replay_reproduces_the_recorded_summaries(ros_context: object, tmp_path: Path) -> None:
-    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.parameter import Parameter
     from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -69,7 +69,7 @@ def test_replay_reproduces_the_recorded_summaries(ros_context: object, tmp_path:
         QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT),
     )
     player = BagPlayer(probe, BAG, topics=["/hexagon/taxels"], rate=3.0)
-    executor = MultiThreadedExecutor(num_threads=3, context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
     executor.add_node(probe)
     assert spin_until(
