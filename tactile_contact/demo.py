@@ -61,6 +61,19 @@ class DemoReport:
         m = self.loaded()
         return np.linalg.norm(self.cop_est[m] - self.cop_true[m], axis=1)
 
+    def frame_lines(self, every: int = 10) -> list[str]:
+        """Every ``every``-th matched frame: time, true and estimated force, CoP error, latency."""
+        lines = ["    t [s]  F true [N]  F est [N]  CoP err [mm]  latency [ms]"]
+        t0 = self.stamps[0] if self.stamps.size else 0.0
+        for j in range(0, self.stamps.size, every):
+            cop = np.linalg.norm(self.cop_est[j] - self.cop_true[j]) * 1e3
+            cop_text = f"{cop:12.2f}" if self.force_true[j] > 0 else f"{'-':>12s}"
+            lines.append(
+                f"{self.stamps[j] - t0:9.2f} {self.force_true[j]:11.2f} {self.force_est[j]:10.2f} "
+                f"{cop_text}  {self.latency[j] * 1e3:12.2f}"
+            )
+        return lines
+
     def summary_lines(self) -> list[str]:
         lat = self.latency * 1e3
         fe = self.force_error() * 100
@@ -314,7 +327,7 @@ def main(argv: list[str] | None = None) -> int:
 
     build_layout(args.layout, args.bundles)  # no-op when the bundles are up to date
     report, seen, patch = run(args.layout, args.bundles, args.duration, args.period_ms)
-    for line in report.summary_lines():
+    for line in [*report.frame_lines(), "", *report.summary_lines()]:
         print(line)
     png = args.out / "demo.png"
     plot(report, seen, args.layout, patch, png)
