@@ -114,10 +114,20 @@ class Harness:
             TaxelArray, "hexagon/taxels", self.taxels.append, deep
         )
         self.listener.create_subscription(DiagnosticArray, "/diagnostics", self.diags.append, 50)
+        # The executor spins in a thread of its own, so the listener drains its reader as fast
+        # as messages come even when the test thread or the machine is busy (under load a
+        # subscriber spun only inside waits lost best-effort messages).
         self.executor = SingleThreadedExecutor(context=ctx)
         self.executor.add_node(self.driver)
         self.executor.add_node(self.listener)
         self._threads: list[threading.Thread] = []
+        self._stop_spin = threading.Event()
+        self._spinner = threading.Thread(target=self._spin, name="test_spin", daemon=True)
+        self._spinner.start()
+
+    def _spin(self) -> None:
+        while not self._stop_spin.is_set():
+            self.executor.spin_once(timeout_sec=0.01)
 
     def wait_matched(self) -> None:
         """Both ends matched (the listener side too: a previous test's listener may linger)."""
@@ -130,14 +140,14 @@ class Harness:
         self.spin_for(0.1)  # (discovery completes on both sides)
 
     def spin_until(self, done: Any, timeout_s: float) -> bool:
-        from test.rosutil import spin_until
-
-        return spin_until(self.executor, done, timeout_s)
+        """Wait until ``done()`` or the deadline (returns at once when the condition holds)."""
+        deadline = time.monotonic() + timeout_s
+        while not done() and time.monotonic() < deadline:
+            time.sleep(0.002)
+        return bool(done())
 
     def spin_for(self, seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            self.executor.spin_once(timeout_sec=0.02)
+        time.sleep(seconds)  # the spin thread delivers meanwhile
 
     def send(self, batches: Iterable[list[can.Message]], bus: can.BusABC | None = None) -> None:
         """Send each batch then wait one period (real time), in a thread."""
@@ -170,6 +180,8 @@ class Harness:
     def close(self) -> None:
         for t in self._threads:
             t.join(timeout=10.0)
+        self._stop_spin.set()
+        self._spinner.join(timeout=10.0)
         self.executor.shutdown()
         self.driver.destroy_node()
         self.listener.destroy_node()
@@ -600,14 +612,18 @@ def test_lifecycle_cycle_stops_and_restarts_publishing(harness_factory: Any) -> 
     stamp = h.taxels[-1].header.stamp.sec + h.taxels[-1].header.stamp.nanosec * 1e-9
     assert abs(stamp - time.time()) < 5.0, "stamp_source now: node clock, not the frames' 0..1 s"
     assert d.trigger_deactivate() == ok
-    h.spin_until(lambda: not h.sending(), 5.0)
+    assert h.spin_until(lambda: not h.sending(), 10.0)
+    published = d._stream._patches[0].published  # final: the receive thread has stopped
+    # Messages published before deactivation may still be in flight under load.
+    assert h.spin_until(lambda: len(h.taxels) >= published, 10.0)
     n = len(h.taxels)
     h.send(p.messages for p in simulator().periods(None, 0.2, start_s=1.0))
     h.spin_for(0.4)
-    assert len(h.taxels) == n, "inactive: nothing published"
+    assert h.spin_until(lambda: not h.sending(), 10.0)  # all queued before reactivation
+    assert len(h.taxels) == n and d._stream._patches[0].published == published, "inactive"
     assert d.trigger_activate() == ok  # frames queued while inactive are dropped, not published
     h.spin_for(0.2)
-    assert len(h.taxels) == n
+    assert len(h.taxels) == n and d._stream._patches[0].published == published
     assert d.trigger_deactivate() == ok
     assert d.trigger_cleanup() == ok and d._bus is None
     assert d.trigger_configure() == ok
