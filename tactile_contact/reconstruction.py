@@ -8,8 +8,8 @@
    solve.
    |δ|, not δ > 0: a small contact between taxels makes every nearby taxel read negative.
 3. *Free solution*: q = C⁺_λ·δ with the precomputed regularised inverse (float32 product).
-   If no cell is below −3 σ (σ = the cell's noise from the measurement noise through C⁺_λ),
-   it is the answer (path ``"free"``).
+   If no cell is below −3 σ (σ = the cell's noise from the measurement noise through C⁺_λ)
+   and its net force is positive, it is the answer (path ``"free"``).
 4. Otherwise the *constrained solve* (path ``"nnls"``): non-negative Tikhonov least squares,
    twice — over the whole grid, then restricted to cells within ``support_radius`` of the cells
    carrying at least ``seed_fraction`` of the first pass's peak. The second pass removes the
@@ -219,7 +219,8 @@ class Reconstructor:
             q = self._masked_free(ok) @ delta[ok]
         if self.method == "nnls_tikhonov":
             path = "free"
-            if np.any(q < -3.0 * self._cell_noise):
+            # A net pull is no contact a skin can feel: it too needs the constrained solve.
+            if q.sum() <= 0 or np.any(q < -3.0 * self._cell_noise):
                 path = "nnls"
                 q, success, iterations, refined = self._constrained(delta, ok)
         dt = time.perf_counter() - t0
