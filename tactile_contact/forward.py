@@ -22,6 +22,16 @@ from tactile_contact.indenters import Indenter
 EPSILON_0 = 8.8541878128e-12  # vacuum permittivity [F/m]
 
 
+def _load_center(force: float, center_xy: ArrayLike) -> NDArray[np.float64]:
+    """The indenter axis as a (2,) array, after checking force [N] and centre [m]."""
+    c = np.asarray(center_xy, dtype=np.float64)
+    if c.shape != (2,) or not np.all(np.isfinite(c)):
+        raise ValueError(f"center_xy must be a finite (x, y) pair [m], got {center_xy!r}")
+    if not (math.isfinite(force) and force >= 0):
+        raise ValueError(f"force must be finite and >= 0 N, got {force!r}")
+    return c
+
+
 @dataclass(frozen=True)
 class ForwardFields:
     """One simulated indentation.
@@ -123,11 +133,7 @@ class ForwardModel:
 
     def fields(self, indenter: Indenter, force: float, center_xy: ArrayLike) -> ForwardFields:
         """Simulate ``indenter`` pressed with ``force`` [N] at ``center_xy`` [m]."""
-        c = np.asarray(center_xy, dtype=np.float64)
-        if c.shape != (2,) or not np.all(np.isfinite(c)):
-            raise ValueError(f"center_xy must be a finite (x, y) pair [m], got {center_xy!r}")
-        if not (math.isfinite(force) and force >= 0):
-            raise ValueError(f"force must be finite and >= 0 N, got {force!r}")
+        c = _load_center(force, center_xy)
         k = len(self.points_xy)
         if force == 0:
             z = np.zeros((0, 2))
@@ -214,11 +220,7 @@ class PatchForwardModel:
         self, indenter: Indenter, force: float, center_xy: ArrayLike
     ) -> NDArray[np.float64]:
         """(K,) effective deflection u_z(0) − u_z(h) [m] at the taxels."""
-        c = np.asarray(center_xy, dtype=np.float64)
-        if c.shape != (2,) or not np.all(np.isfinite(c)):
-            raise ValueError(f"center_xy must be a finite (x, y) pair [m], got {center_xy!r}")
-        if not (math.isfinite(force) and force >= 0):
-            raise ValueError(f"force must be finite and >= 0 N, got {force!r}")
+        c = _load_center(force, center_xy)
         if force == 0:
             return np.zeros(self.kernel.shape[0])
         a = indenter.contact_radius(force, self.young, self.poisson)

@@ -10,14 +10,16 @@ Everything here is a thin convenience over rclpy; no node logic lives in this mo
   return the value; out-of-range or unknown choices are rejected at declaration and on later sets.
 - :func:`log_parameters`: one info line per parameter, at start.
 - :func:`diagnostic_status`: a ``DiagnosticStatus`` from a name, level, message and key/values.
+- :func:`run_node`: the standard ``main()`` of a node executable.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
+import rclpy
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (
@@ -26,6 +28,7 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
     SetParametersResult,
 )
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import (
@@ -174,3 +177,24 @@ def diagnostic_status(
     return DiagnosticStatus(
         level=bytes([level]), name=name, message=message, hardware_id=hardware_id, values=kvs
     )
+
+
+def run_node(name: str, factory: Callable[[], Node], args: list[str] | None = None) -> None:
+    """Spin the node ``factory()`` makes until Ctrl-C or shutdown; if it cannot even be
+    constructed (e.g. a parameter out of range), print ``ERROR: <name>: …`` and exit 1."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = factory()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception as exc:  # the node could not start: say why, exit 1
+        print(f"ERROR: {name}: {type(exc).__name__}: {exc}")
+        raise SystemExit(1) from None
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()

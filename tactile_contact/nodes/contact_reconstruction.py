@@ -26,9 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, PointCloud2
@@ -48,6 +46,7 @@ from tactile_contact.nodes.common import (
     declare_parameter,
     diagnostic_status,
     log_parameters,
+    run_node,
     seconds_from_stamp,
 )
 from tactile_contact.reconstruction import Reconstructor
@@ -376,15 +375,8 @@ class ContactReconstructionNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = ContactReconstructionNode()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    """Run ``contact_reconstruction`` until Ctrl-C; exit 1 with a message if it cannot start."""
+    run_node("contact_reconstruction", ContactReconstructionNode, args)
 
 
 if __name__ == "__main__":

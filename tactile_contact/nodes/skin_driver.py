@@ -29,9 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import can
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.publisher import Publisher
 from rclpy.timer import Timer
@@ -485,22 +483,7 @@ class SkinDriver(LifecycleNode):
 
 def main(args: list[str] | None = None) -> None:
     """Run ``skin_driver`` until Ctrl-C; exit 1 with a message if it cannot start."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = SkinDriver()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as exc:  # e.g. a parameter out of range: say so, exit 1
-        print(f"ERROR: skin_driver: {type(exc).__name__}: {exc}")
-        raise SystemExit(1) from None
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    cm.run_node("skin_driver", SkinDriver, args)
 
 
 if __name__ == "__main__":

@@ -28,8 +28,6 @@ from typing import Any
 
 import can
 import numpy as np
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
 from tactile_contact.codec import CLASS_ANALOG_SENSOR, CLASS_SKIN
@@ -233,22 +231,7 @@ class SkinSimulatorNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run ``skin_simulator`` until Ctrl-C; exit 1 with a message if it cannot start."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = SkinSimulatorNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as exc:
-        print(f"ERROR: skin_simulator: {type(exc).__name__}: {exc}")
-        raise SystemExit(1) from None
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    cm.run_node("skin_simulator", SkinSimulatorNode, args)
 
 
 if __name__ == "__main__":
