@@ -76,6 +76,7 @@ test-data: setup bundles
 
 bench: setup
 	$(PY) bench/tradeoff.py --out docs/bench
+	$(PY) bench/stability.py --out docs/bench
 
 bench-quick: setup
 	$(PY) bench/tradeoff.py --quick --out out/bench-quick
