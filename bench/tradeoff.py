@@ -60,7 +60,12 @@ CONFIGS: dict[str, dict] = {
     "paper: pinv": {"solver": {"method": "pinv"}},
 }
 QUICK = ("default (Love, 2 mm, 2-pass NNLS+Tikhonov)", "B-C, Ψ = 0.25", "3 mm cells", "paper: pinv")
-NOISE = {"0.15 count": (0.15, False), "0.15 count +offsets": (0.15, True)}
+NOISE = {
+    "none": (0.0, False),
+    "0.15 count": (0.15, False),
+    "0.15 count +offsets": (0.15, True),
+    "0.3 count +offsets": (0.3, True),
+}
 QUICK_NOISE = ("0.15 count +offsets",)
 
 
