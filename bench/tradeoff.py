@@ -194,7 +194,9 @@ def render(results: dict, out: Path) -> None:
         (axes[0], "force_err_pct_median", "total force error, median [%]"),
         (axes[1], "cop_mm_median", "CoP error, median [mm]"),
     ):
-        for noise, marker in zip(sorted({r["noise"] for r in rows}), "os^", strict=False):
+        noises = sorted({r["noise"] for r in rows})
+        for k, (noise, marker) in enumerate(zip(noises, "osD^v", strict=False)):
+            colour = f"C{k}"
             sub = [r for r in rows if r["noise"] == noise]
             front = pareto(sub, key)
             for r, f in zip(sub, front, strict=True):
@@ -203,7 +205,7 @@ def render(results: dict, out: Path) -> None:
                     r[key],
                     marker=marker,
                     s=60 if f else 25,
-                    c="C3" if f else "C0",
+                    c=colour if f else "lightgrey",
                     edgecolors="k" if f else "none",
                 )
                 ax.annotate(
@@ -219,7 +221,7 @@ def render(results: dict, out: Path) -> None:
             ax.step(
                 *zip(*pts, strict=True),
                 where="post",
-                c="C3",
+                c=colour,
                 lw=1,
                 label=f"Pareto front, noise {noise}",
             )
@@ -229,7 +231,10 @@ def render(results: dict, out: Path) -> None:
         ax.axvline(1.0, c="grey", ls=":", lw=1)
         ax.axhline(10.0 if key.startswith("force") else 1.0, c="grey", ls=":", lw=1)
         ax.legend(fontsize=7)
-    fig.suptitle("tactile_contact: online time against error (big red markers: Pareto front)")
+    fig.suptitle(
+        "tactile_contact: online time against error per noise level "
+        "(large markers: Pareto front; grey: dominated)"
+    )
     fig.savefig(out / "tradeoff.png", dpi=100)
     plt.close(fig)  # fmt: skip
 
