@@ -92,7 +92,7 @@ def truth_cases(recon: Reconstructor, forces: tuple[float, ...], modules: tuple[
         recon.taxel_xy, p["thickness"], p["young"], p["poisson"], 2.5e-4, p["taxel_radius"]
     )
     return [
-        (iname, pname, f, c, ind.contact_radius(f, p["young"], p["poisson"]),
+        (ind, pname, f, c, ind.contact_radius(f, p["young"], p["poisson"]),
          fm.delta_c(ind, f, c, p["epsilon_r"]))
         for iname, ind in INDENTERS.items()
         for pname, c in positions(recon.taxel_xy, modules)
@@ -103,22 +103,35 @@ def truth_cases(recon: Reconstructor, forces: tuple[float, ...], modules: tuple[
 def noisy(cases: list, lsb: float, rms: float, offsets: bool, seed: int) -> list:
     rng = np.random.default_rng(seed)
     out = []
-    for iname, pname, f, c, a, dc in cases:
+    for ind, pname, f, c, a, dc in cases:
         v = dc + rng.normal(0.0, rms * lsb, dc.shape)
         q = np.rint(v / lsb) * lsb
         if offsets:
             q = q + rng.uniform(-0.5, 0.5, dc.shape) * lsb
-        out.append((iname, pname, f, c, a, q))
+        out.append((ind, pname, f, c, a, q))
     return out
 
 
 def evaluate(recon: Reconstructor, cases: list) -> dict:
+    """Errors of one configuration. Relative L2 errors compare with the true pressure averaged
+    exactly over each traction cell, and with the deflection that pressure gives through the
+    bundle's own deflection operator (so the deflection error is the reconstruction's, not the
+    grid's)."""
     recon.solve(cases[0][5])  # warm: first-frame caches
-    times, ferr, cop, ious, seen = [], [], [], [], []
-    for _, _, f, c, a, dc in cases:
+    grid = recon.traction_grid
+    centers, halves = grid.centers(), grid.half_sizes()
+    g_out = np.asarray(recon.bundle["deflection_operator"], dtype=np.float64)
+    p = recon.params
+    times, ferr, cop, ious, seen, l2t, l2d = [], [], [], [], [], [], []
+    for ind, _, f, c, a, dc in cases:
         t0 = time.perf_counter()
         res = recon.solve(dc)
         times.append(time.perf_counter() - t0)
+        true_q = ind.pressure_on_cells(centers, halves, f, c, p["young"], p["poisson"])
+        est_q = res.traction[grid.mask] if res.traction is not None else np.zeros_like(true_q)
+        l2t.append(np.linalg.norm(est_q - true_q) / np.linalg.norm(true_q))
+        true_d, est_d = g_out @ true_q, g_out @ est_q
+        l2d.append(np.linalg.norm(est_d - true_d) / np.linalg.norm(true_d))
         ferr.append(abs(res.total_force / f - 1.0) * 100.0)
         seen.append(bool(res.in_contact))
         cop.append(float(np.hypot(*(np.asarray(res.cop) - c))) * 1e3 if res.in_contact else 99.0)
@@ -132,6 +145,8 @@ def evaluate(recon: Reconstructor, cases: list) -> dict:
         "cop_mm_median": float(np.median(cop)),
         "cop_mm_p90": float(np.percentile(cop, 90)),
         "iou_median": float(np.median(ious)),
+        "l2_traction_median": float(np.median(l2t)),
+        "l2_deflection_median": float(np.median(l2d)),
         "detected": float(np.mean(seen)),
     }
 
@@ -165,8 +180,8 @@ def render(results: dict, out: Path) -> None:
         "fixed baseline offset of up to ±½ count, as a real driver's baseline does.",
         "",
         "| configuration | noise | build s | build MB | online ms med (p99) | force err % | "
-        "CoP mm | IoU | detected |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "CoP mm | IoU | L2 traction | L2 deflection | detected |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
@@ -174,6 +189,7 @@ def render(results: dict, out: Path) -> None:
             f"{r['online_ms_median']:.2f} ({r['online_ms_p99']:.2f}) | "
             f"{r['force_err_pct_median']:.1f} ({r['force_err_pct_p90']:.0f}) | "
             f"{r['cop_mm_median']:.2f} ({r['cop_mm_p90']:.1f}) | {r['iou_median']:.2f} | "
+            f"{r['l2_traction_median']:.2f} | {r['l2_deflection_median']:.2f} | "
             f"{r['detected'] * 100:.0f} % |"
         )
     target = [
