@@ -1,65 +1,126 @@
-"""Run time against error over models, grids, solvers and noise (``make bench``).
+"""Run time against error over model, grid, measurement mode, solver, dtype and noise.
 
-The paper's protocol in simulation (bench/bench_accuracy.py builds the cases): 12 mm and 6 mm
-half-spheres, 12 mm and 3 mm flat cylinders; over a taxel, between two, between three; forces
-0.2–3 N; the ground truth from the independent fine forward model (0.25 mm cells, electrode
-average, exact capacitance), then noise and 8-bit quantisation. The driver's baseline is a mean
-of quantised samples, so the ``+offsets`` noise levels add a fixed offset of up to ±½ count to
-every taxel, as a real skin reads.
+    python bench/tradeoff.py --out docs/bench [--quick] [--replot]      (make bench / bench-quick)
 
-One factor at a time around the default (config/hexagon_patch.yaml) plus the paper's methods:
-model (Love, Boussinesq–Cerruti with Ψ exact and Ψ = 0.25), traction cell (1–4 mm), solver
-(pinv, Tikhonov, TSVD, NNLS, NNLS+Tikhonov two-pass = default, + round-contact refinement),
-noise. Per configuration: offline build time and peak memory, online time per frame (median,
-p99, warm), errors (total force, CoP, contact-area IoU). Writes ``results.json``,
-``tradeoff.png`` (online time against force and CoP error, Pareto front marked) and
-``tradeoff.md``; ``--replot`` redraws them from the JSON.
+The paper's protocol in simulation: 12 mm and 6 mm half-spheres, 12 mm and 3 mm flat cylinders
+× over a taxel / between two / between three (two modules) × 0.2, 0.5, 1, 1.8, 2.5, 3 N. The
+truth is the independent fine forward model (:class:`tactile_contact.forward.ForwardModel`:
+0.25 mm cells, electrode average, exact capacitance); then noise, 8-bit quantisation, and for
+the ``+offsets`` levels a fixed per-taxel baseline offset of up to ±½ count, as a real driver's
+baseline (a mean of quantised samples) leaves. Noisy levels are repeated with 3 noise seeds.
 
-    python bench/tradeoff.py --out docs/bench [--quick] [--replot]
+Design: one factor at a time around the default (config/hexagon_patch.yaml: Love, 2 mm cells,
+taxel measurements, two-pass NNLS + Tikhonov, float32 online products) plus the paper's methods
+and a few interesting pairs (CONFIGS). Per configuration: offline build time and peak traced
+memory, online time per patch frame (ΔC in → traction, deflection and summary out; median and
+p99, warm, one BLAS thread as in the node), and errors against the truth: total force
+(relative), CoP [mm], contact-area IoU, relative L2 of the traction (vs the exact cell averages
+of the true pressure) and of the deflection (both through the bundle's deflection operator).
+Undetected contacts count as 100 % force error, 99 mm CoP error, IoU 0, L2 1.
+
+Writes ``results.json``, ``tradeoff.png`` (online time against force and CoP error, Pareto
+front per noise level marked) and ``tradeoff.md``; ``--replot`` redraws the last two from the
+JSON.
 """
 
 from __future__ import annotations
 
 import argparse
-import copy
 import json
+import platform
 import sys
 import tempfile
 import time
-import tracemalloc
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-import yaml
+from threadpoolctl import threadpool_limits
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "bench"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_accuracy import INDENTERS, iou, positions  # noqa: E402
+from _common import ROOT, interpolation_matrix, load, timed_build, variant
+from bench_accuracy import INDENTERS, iou, positions
+from tradeoff_report import render
 
-from tactile_contact.build import build_patch  # noqa: E402
-from tactile_contact.bundle import save_bundle  # noqa: E402
-from tactile_contact.forward import ForwardModel  # noqa: E402
-from tactile_contact.layout import parse_layout  # noqa: E402
-from tactile_contact.reconstruction import Reconstructor  # noqa: E402
-from tactile_contact.sensor import value_count_farad  # noqa: E402
+from tactile_contact.build import build_patch, forward_matrix, free_inverse, grids_for
+from tactile_contact.forward import ForwardModel
+from tactile_contact.layout import PatchLayout
+from tactile_contact.reconstruction import ContactResult, Reconstructor
+from tactile_contact.sensor import value_count_farad
+from tactile_contact.solvers import NnlsSolver
+from tactile_contact.summary import summarize
 
-# name → layout sections to change; the default first.
-CONFIGS: dict[str, dict] = {
-    "default (Love, 2 mm, 2-pass NNLS+Tikhonov)": {},
-    "+ round-contact refinement": {"solver": {"refine": "axisymmetric"}},
-    "B-C, Ψ exact": {"model": {"kind": "boussinesq", "psi": "exact"}},
-    "B-C, Ψ = 0.25": {"model": {"kind": "boussinesq", "psi": 0.25}},
-    "1 mm cells": {"grid": {"traction_cell": 0.001}},
-    "3 mm cells": {"grid": {"traction_cell": 0.003}},
-    "4 mm cells": {"grid": {"traction_cell": 0.004}},
-    "NNLS (λ 0.001)": {"solver": {"tikhonov": 0.001}},
-    "Tikhonov λ 0.1 (free)": {"solver": {"method": "tikhonov"}},
-    "TSVD rank 20": {"solver": {"method": "tsvd", "tsvd_rank": 20}},
-    "paper: pinv": {"solver": {"method": "pinv"}},
-}
-QUICK = ("default (Love, 2 mm, 2-pass NNLS+Tikhonov)", "B-C, Ψ = 0.25", "3 mm cells", "paper: pinv")
+
+@dataclass(frozen=True)
+class Config:
+    """One point of the sweep.
+
+    ``sections`` overrides the default layout; ``mode`` is ``taxels`` (solve at the taxels,
+    the default) or ``grid`` (the paper's: readings interpolated onto the traction grid's cell
+    centres, then the square problem); ``dtype`` is the free product's precision; ``passes`` 1
+    runs one NNLS(+Tikhonov) over the whole grid through :class:`NnlsSolver` instead of the
+    library's two-pass solve."""
+
+    key: str
+    name: str
+    factor: str
+    sections: dict[str, dict[str, Any]] = field(default_factory=dict)
+    mode: str = "taxels"
+    dtype: str = "float32"
+    passes: int = 2
+
+
+PINV = {"solver": {"method": "pinv"}}
+TIKH = {"solver": {"method": "tikhonov"}}
+BC025 = {"model": {"kind": "boussinesq", "psi": 0.25}}
+CONFIGS = [
+    Config("default", "default: Love, 2 mm, taxels, 2-pass NNLS+Tikhonov, f32", "default"),
+    Config("BC exact", "B-C, Ψ exact", "model", {"model": {"kind": "boussinesq"}}),
+    Config("BC 0.25", "B-C, Ψ = 0.25", "model", BC025),
+    Config("1 mm", "1 mm cells", "cell", {"grid": {"traction_cell": 0.001}}),
+    Config("3 mm", "3 mm cells", "cell", {"grid": {"traction_cell": 0.003}}),
+    Config("4 mm", "4 mm cells", "cell", {"grid": {"traction_cell": 0.004}}),
+    Config("grid", "interpolated grid, default solver", "measurement", mode="grid"),
+    Config("pinv", "pinv (rcond 1e-3)", "solver", PINV),
+    Config("tikhonov", "Tikhonov λ 0.1·s₁ (free)", "solver", TIKH),
+    Config("tsvd", "TSVD rank 20", "solver", {"solver": {"method": "tsvd", "tsvd_rank": 20}}),
+    Config("nnls", "NNLS, 1 pass", "solver", {"solver": {"tikhonov": 0.0}}, passes=1),
+    Config("nnls+tikh", "NNLS+Tikhonov λ 0.1, 1 pass", "solver", passes=1),
+    Config(
+        "refine",
+        "default + round-contact refinement",
+        "solver",
+        {"solver": {"refine": "axisymmetric"}},
+    ),
+    Config("f64", "default, float64 products", "dtype", dtype="float64"),
+    Config("pinv f64", "pinv, float64 products", "dtype", PINV, dtype="float64"),
+    Config("grid+pinv", "paper: Love, interpolated grid, pinv", "pair", PINV, mode="grid"),
+    Config(
+        "grid+BC+pinv",
+        "paper: B-C Ψ 0.25, interpolated grid, pinv",
+        "pair",
+        {**BC025, **PINV},
+        mode="grid",
+    ),
+    Config("grid+tikh", "interpolated grid, Tikhonov", "pair", TIKH, mode="grid"),
+    Config("4 mm+tikh", "4 mm cells, Tikhonov", "pair", {"grid": {"traction_cell": 0.004}, **TIKH}),
+    Config(
+        "BC exact 4 mm",
+        "B-C Ψ exact, 4 mm cells (Ψ ≈ 0)",
+        "pair",
+        {"model": {"kind": "boussinesq"}, "grid": {"traction_cell": 0.004}},
+    ),
+    Config(
+        "BC 0.25 3 mm",
+        "B-C Ψ 0.25, 3 mm cells",
+        "pair",
+        {**BC025, "grid": {"traction_cell": 0.003}},
+    ),
+]
+QUICK = ("default", "BC 0.25", "grid+pinv", "pinv", "f64")
+#: name → (noise RMS [counts], baseline offsets ±½ count?)
 NOISE = {
     "none": (0.0, False),
     "0.15 count": (0.15, False),
@@ -67,244 +128,282 @@ NOISE = {
     "0.3 count +offsets": (0.3, True),
 }
 QUICK_NOISE = ("0.15 count +offsets",)
+REPEATS = 3
 
 
-def build(doc: dict, folder: Path) -> tuple[Reconstructor, float, float]:
-    """Bundle of one configuration: (reconstructor, build time [s], peak memory [MB])."""
-    patch = parse_layout(doc).patches[0]
-    tracemalloc.start()
-    t0 = time.perf_counter()
+def _build(patch: PatchLayout, cfg: Config) -> tuple[dict, dict, dict]:
+    """Bundle contents of a configuration plus bench-side extras (float64 inverse, P)."""
     manifest, arrays = build_patch(patch)
-    seconds = time.perf_counter() - t0
-    peak = tracemalloc.get_traced_memory()[1] / 1e6
-    tracemalloc.stop()
-    return (
-        Reconstructor.from_bundle(save_bundle(folder / patch.name, manifest, arrays)),
-        seconds,
-        peak,
-    )
+    extra: dict[str, Any] = {}
+    reg = arrays.get("regulariser")
+    if cfg.mode == "grid":
+        tg, _ = grids_for(patch)
+        centres = tg.centers()
+        c = forward_matrix(patch, centres, tg)  # point values at the virtual grid nodes
+        inverse, lam = free_inverse(patch, c, reg)
+        extra["interp"] = interpolation_matrix(patch.taxel_xy(), centres)
+        arrays.update(
+            forward=c,
+            inverse=inverse.astype(np.float32),
+            taxel_xy=centres,
+            taxel_ids=np.arange(len(centres)),
+        )
+        manifest["params"]["tikhonov"] = lam
+    else:
+        inverse, _ = free_inverse(patch, arrays["forward"], reg)
+    if cfg.dtype == "float64":
+        extra["inverse64"] = inverse
+    if cfg.passes == 1:
+        p = manifest["params"]
+        extra["nnls"] = NnlsSolver(
+            arrays["forward"], p["tikhonov"], reg, p["nnls_method"]
+        ).prepare()
+    return manifest, arrays, extra
 
 
-def truth_cases(recon: Reconstructor, forces: tuple[float, ...], modules: tuple[int, ...]) -> list:
-    """Exact ΔC [F] of every (indenter, position, force), before noise."""
+class Pipeline:
+    """A configuration's online path: ΔC [F] (K,) → ContactResult, through Reconstructor."""
+
+    def __init__(self, cfg: Config, folder: Path) -> None:
+        self.cfg = cfg
+        (manifest, arrays, extra), self.build_s, self.build_mb = timed_build(
+            _build, variant(cfg.sections), cfg
+        )
+        self.recon: Reconstructor = load(folder, manifest, arrays)
+        if "inverse64" in extra:
+            # Reconstructor has no precision option (it always casts C⁺ to float32); the bench
+            # swaps in the float64 operator, which its product then uses as is.
+            assert self.recon._inverse.shape == extra["inverse64"].shape
+            self.recon._inverse = np.ascontiguousarray(extra["inverse64"])
+        self.interp = extra.get("interp")
+        self.nnls: NnlsSolver | None = extra.get("nnls")
+        r = self.recon
+        self._defl = np.asarray(r.bundle["deflection_operator"], np.float32)
+        self._centres, self._area = r.traction_grid.centers(), r.traction_grid.cell_area
+
+    def frame(self, dc: np.ndarray) -> ContactResult:
+        r = self.recon
+        if self.interp is not None:
+            return r.solve_deflection(self.interp @ r.compression(dc))
+        if self.nnls is None:
+            return r.solve(dc)
+        return self._one_pass(dc)
+
+    def _one_pass(self, dc: np.ndarray) -> ContactResult:
+        """One NNLS over every cell, with the Reconstructor's contact test, summary and
+        deflection product: the ablation of the library's second (support) pass."""
+        r = self.recon
+        delta = r.compression(dc)
+        active = int(np.count_nonzero(np.abs(delta) > r.contact_threshold))
+        if active == 0:
+            return r.solve(dc)  # the library's zero result
+        sol = self.nnls.solve(delta)  # type: ignore[union-attr]
+        q = sol.x
+        p = r.params
+        s = summarize(q, self._centres, self._area, p["rel_threshold"], p["min_pressure"])
+        d = r.deflection_grid.to_image(self._defl @ q.astype(np.float32)).astype(np.float64)
+        return ContactResult(
+            r.traction_grid.to_image(q),
+            d,
+            s.total_force,
+            s.cop,
+            s.contact_area,
+            s.peak_pressure,
+            s.in_contact,
+            "nnls",
+            sol.success,
+            sol.iterations,
+            sol.residual_norm,
+            sol.time_s,
+            active,
+        )
+
+
+def truth(recon: Reconstructor, forces: tuple[float, ...], modules: tuple[int, ...]) -> list:
+    """(indenter, position name, force [N], centre [m], contact radius [m], exact ΔC [F])."""
     p = recon.params
     fm = ForwardModel(
         recon.taxel_xy, p["thickness"], p["young"], p["poisson"], 2.5e-4, p["taxel_radius"]
     )
     return [
-        (ind, pname, f, c, ind.contact_radius(f, p["young"], p["poisson"]),
-         fm.delta_c(ind, f, c, p["epsilon_r"]))
-        for iname, ind in INDENTERS.items()
+        (
+            ind,
+            pname,
+            f,
+            c,
+            ind.contact_radius(f, p["young"], p["poisson"]),
+            fm.delta_c(ind, f, c, p["epsilon_r"]),
+        )
+        for ind in INDENTERS.values()
         for pname, c in positions(recon.taxel_xy, modules)
         for f in forces
-    ]  # fmt: skip
+    ]
 
 
 def noisy(cases: list, lsb: float, rms: float, offsets: bool, seed: int) -> list:
+    """Cases with Gaussian noise of ``rms`` counts, 8-bit quantisation (``lsb`` [F] per count)
+    and, if ``offsets``, a fixed per-taxel baseline offset uniform in ±½ count."""
     rng = np.random.default_rng(seed)
     out = []
+    offset = rng.uniform(-0.5, 0.5, cases[0][5].shape) * lsb if offsets else 0.0
     for ind, pname, f, c, a, dc in cases:
-        v = dc + rng.normal(0.0, rms * lsb, dc.shape)
-        q = np.rint(v / lsb) * lsb
-        if offsets:
-            q = q + rng.uniform(-0.5, 0.5, dc.shape) * lsb
-        out.append((ind, pname, f, c, a, q))
+        q = np.rint((dc + rng.normal(0.0, rms * lsb, dc.shape)) / lsb) * lsb
+        out.append((ind, pname, f, c, a, q + offset))
     return out
 
 
-def evaluate(recon: Reconstructor, cases: list) -> dict:
-    """Errors of one configuration. Relative L2 errors compare with the true pressure averaged
-    exactly over each traction cell, and with the deflection that pressure gives through the
-    bundle's own deflection operator (so the deflection error is the reconstruction's, not the
-    grid's)."""
-    recon.solve(cases[0][5])  # warm: first-frame caches
-    grid = recon.traction_grid
-    centers, halves = grid.centers(), grid.half_sizes()
-    g_out = np.asarray(recon.bundle["deflection_operator"], dtype=np.float64)
-    p = recon.params
-    times, ferr, cop, ious, seen, l2t, l2d = [], [], [], [], [], [], []
-    for ind, _, f, c, a, dc in cases:
+def evaluate(pipe: Pipeline, cases: list, taxel_recon: Reconstructor) -> dict[str, float]:
+    """Online time and error statistics of one configuration over ``cases``.
+
+    The frames run back to back first and only they are timed (warm caches, as a node working
+    through a stream); the errors are computed afterwards."""
+    recon = pipe.recon
+    pipe.frame(cases[-1][5])  # warm: first-frame caches
+    m: dict[str, list[float]] = {k: [] for k in ("t", "solve", "f", "cop", "iou", "l2t", "l2d")}
+    results = []
+    for case in cases:
         t0 = time.perf_counter()
-        res = recon.solve(dc)
-        times.append(time.perf_counter() - t0)
-        true_q = ind.pressure_on_cells(centers, halves, f, c, p["young"], p["poisson"])
-        est_q = res.traction[grid.mask] if res.traction is not None else np.zeros_like(true_q)
-        l2t.append(np.linalg.norm(est_q - true_q) / np.linalg.norm(true_q))
-        true_d, est_d = g_out @ true_q, g_out @ est_q
-        l2d.append(np.linalg.norm(est_d - true_d) / np.linalg.norm(true_d))
-        ferr.append(abs(res.total_force / f - 1.0) * 100.0)
-        seen.append(bool(res.in_contact))
-        cop.append(float(np.hypot(*(np.asarray(res.cop) - c))) * 1e3 if res.in_contact else 99.0)
-        ious.append(iou(res, recon.traction_grid, c, a))
-    t = np.asarray(times) * 1e3
+        res = pipe.frame(case[5])
+        m["t"].append(time.perf_counter() - t0)
+        results.append(res)
+    grid = recon.traction_grid
+    centres, halves = grid.centers(), grid.half_sizes()
+    g_out = np.asarray(recon.bundle["deflection_operator"], dtype=np.float64)
+    p = taxel_recon.params
+    seen = []
+    for (ind, _, f, c, a, _), res in zip(cases, results, strict=True):
+        m["solve"].append(res.solve_time)
+        true_q = ind.pressure_on_cells(centres, halves, f, c, p["young"], p["poisson"])
+        est_q = res.traction[grid.mask] if res.in_contact else np.zeros_like(true_q)
+        m["l2t"].append(np.linalg.norm(est_q - true_q) / np.linalg.norm(true_q))
+        true_d = g_out @ true_q
+        m["l2d"].append(np.linalg.norm(g_out @ est_q - true_d) / np.linalg.norm(true_d))
+        m["f"].append(abs(res.total_force / f - 1.0) * 100.0 if res.in_contact else 100.0)
+        m["cop"].append(
+            float(np.hypot(*(np.asarray(res.cop) - c))) * 1e3 if res.in_contact else 99.0
+        )
+        m["iou"].append(iou(res, grid, c, a))
+        seen.append(res.in_contact)
+    t, solve = np.asarray(m["t"]) * 1e3, np.asarray(m["solve"]) * 1e3
+
+    def med(k: str) -> float:
+        return float(np.median(m[k]))
+
+    def p90(k: str) -> float:
+        return float(np.percentile(m[k], 90))
+
     return {
+        "frames": len(cases),
         "online_ms_median": float(np.median(t)),
         "online_ms_p99": float(np.percentile(t, 99)),
-        "force_err_pct_median": float(np.median(ferr)),
-        "force_err_pct_p90": float(np.percentile(ferr, 90)),
-        "cop_mm_median": float(np.median(cop)),
-        "cop_mm_p90": float(np.percentile(cop, 90)),
-        "iou_median": float(np.median(ious)),
-        "l2_traction_median": float(np.median(l2t)),
-        "l2_deflection_median": float(np.median(l2d)),
+        "solve_ms_median": float(np.median(solve)),
+        "force_err_pct_median": med("f"),
+        "force_err_pct_p90": p90("f"),
+        "cop_mm_median": med("cop"),
+        "cop_mm_p90": p90("cop"),
+        "iou_median": med("iou"),
+        "l2_traction_median": med("l2t"),
+        "l2_deflection_median": med("l2d"),
         "detected": float(np.mean(seen)),
     }
 
 
-def pareto(rows: list[dict], key: str) -> list[bool]:
-    """Rows not dominated in (online time, error ``key``)."""
-    out = []
-    for r in rows:
-        out.append(
-            not any(
-                o["online_ms_median"] <= r["online_ms_median"]
-                and o[key] <= r[key]
-                and (o["online_ms_median"] < r["online_ms_median"] or o[key] < r[key])
-                for o in rows
-            )
-        )
-    return out
-
-
-def render(results: dict, out: Path) -> None:
-    """tradeoff.md and tradeoff.png from the results dictionary."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    rows = results["rows"]
-    lines = [
-        f"Cases: {results['cases']} (indenters × positions × forces), hexagon patch, "
-        f"{results['machine']}. Errors: median (p90). `+offsets`: every taxel also carries a "
-        "fixed baseline offset of up to ±½ count, as a real driver's baseline does.",
-        "",
-        "| configuration | noise | build s | build MB | online ms med (p99) | force err % | "
-        "CoP mm | IoU | L2 traction | L2 deflection | detected |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for r in rows:
-        lines.append(
-            f"| {r['config']} | {r['noise']} | {r['build_s']:.2f} | {r['build_mb']:.0f} | "
-            f"{r['online_ms_median']:.2f} ({r['online_ms_p99']:.2f}) | "
-            f"{r['force_err_pct_median']:.1f} ({r['force_err_pct_p90']:.0f}) | "
-            f"{r['cop_mm_median']:.2f} ({r['cop_mm_p90']:.1f}) | {r['iou_median']:.2f} | "
-            f"{r['l2_traction_median']:.2f} | {r['l2_deflection_median']:.2f} | "
-            f"{r['detected'] * 100:.0f} % |"
-        )
-    target = [
-        r
-        for r in rows
-        if r["force_err_pct_median"] <= 10
-        and r["cop_mm_median"] <= 1
-        and r["online_ms_median"] <= 1
-    ]
-    lines += [
-        "",
-        "Target (force ≤ 10 %, CoP ≤ 1 mm median, ≤ 1 ms online): "
-        + (", ".join(f"{r['config']} ({r['noise']})" for r in target) if target else "not met"),
-    ]
-    (out / "tradeoff.md").write_text("\n".join(lines) + "\n")
-    fig, axes = plt.subplots(1, 2, figsize=(13, 5.5), layout="constrained")
-    for ax, key, label in (
-        (axes[0], "force_err_pct_median", "total force error, median [%]"),
-        (axes[1], "cop_mm_median", "CoP error, median [mm]"),
-    ):
-        noises = sorted({r["noise"] for r in rows})
-        for k, (noise, marker) in enumerate(zip(noises, "osD^v", strict=False)):
-            colour = f"C{k}"
-            sub = [r for r in rows if r["noise"] == noise]
-            front = pareto(sub, key)
-            for r, f in zip(sub, front, strict=True):
-                ax.scatter(
-                    r["online_ms_median"],
-                    r[key],
-                    marker=marker,
-                    s=60 if f else 25,
-                    c=colour if f else "lightgrey",
-                    edgecolors="k" if f else "none",
-                )
-                ax.annotate(
-                    r["config"],
-                    (r["online_ms_median"], r[key]),
-                    fontsize=6,
-                    xytext=(3, 3),
-                    textcoords="offset points",
-                )
-            pts = sorted(
-                (r["online_ms_median"], r[key]) for r, f in zip(sub, front, strict=True) if f
-            )
-            ax.step(
-                *zip(*pts, strict=True),
-                where="post",
-                c=colour,
-                lw=1,
-                label=f"Pareto front, noise {noise}",
-            )
-        ax.set_xscale("log")
-        ax.set_xlabel("online time per patch frame, median [ms]")
-        ax.set_ylabel(label)
-        ax.axvline(1.0, c="grey", ls=":", lw=1)
-        ax.axhline(10.0 if key.startswith("force") else 1.0, c="grey", ls=":", lw=1)
-        ax.legend(fontsize=7)
-    fig.suptitle(
-        "tactile_contact: online time against error per noise level "
-        "(large markers: Pareto front; grey: dominated)"
-    )
-    fig.savefig(out / "tradeoff.png", dpi=100)
-    plt.close(fig)  # fmt: skip
+def describe(cfg: Config, recon: Reconstructor) -> dict[str, Any]:
+    p = recon.params
+    model = "Love" if p["model"] == "love" else f"B-C Ψ {p['psi']}"
+    solver = {
+        "nnls_tikhonov": "2-pass NNLS+Tikhonov",
+        "pinv": "pinv",
+        "tikhonov": "Tikhonov",
+        "tsvd": "TSVD",
+    }[p["method"]]
+    if cfg.passes == 1:
+        solver = "NNLS" if p["tikhonov"] == 0 else "NNLS+Tikhonov"
+    if p.get("refine") == "axisymmetric":
+        solver += " + refine"
+    return {
+        "key": cfg.key,
+        "config": cfg.name,
+        "factor": cfg.factor,
+        "model": model,
+        "cell_mm": p["traction_cell"] * 1e3,
+        "measurement": cfg.mode,
+        "solver": solver,
+        "dtype": cfg.dtype,
+        "cells": int(recon.traction_grid.n_cells),
+    }
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "bench")
-    ap.add_argument("--quick", action="store_true", help="4 configurations, 1 noise, fewer cases")
+    ap.add_argument("--quick", action="store_true", help="5 configurations, 1 noise, 36 cases")
     ap.add_argument("--replot", action="store_true", help="redraw from OUT/results.json")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     if args.replot:
         render(json.loads((args.out / "results.json").read_text()), args.out)
         return
-    base = yaml.safe_load((ROOT / "config" / "hexagon_patch.yaml").read_text())
-    tmp = Path(tempfile.mkdtemp(prefix="tradeoff_"))
-    names = QUICK if args.quick else tuple(CONFIGS)
+    configs = [c for c in CONFIGS if not args.quick or c.key in QUICK]
     noises = QUICK_NOISE if args.quick else tuple(NOISE)
     forces = (0.5, 1.0, 3.0) if args.quick else (0.2, 0.5, 1.0, 1.8, 2.5, 3.0)
     modules = (4,) if args.quick else (4, 2)
+    repeats = 1 if args.quick else REPEATS
+    tmp = Path(tempfile.mkdtemp(prefix="tradeoff_"))
     t_start = time.perf_counter()
-    rows, exact = [], None
-    for i, name in enumerate(names):
-        doc = copy.deepcopy(base)
-        for sec, kv in CONFIGS[name].items():
-            doc["patches"][0].setdefault(sec, {}).update(kv)
-        recon, build_s, build_mb = build(doc, tmp / f"c{i}")
-        if exact is None:
-            exact = truth_cases(recon, forces, modules)
-        lsb = value_count_farad(recon.params["farad_per_count"], recon.params["shift"])
-        for noise in noises:
-            rms, offsets = NOISE[noise]
-            r = evaluate(recon, noisy(exact, lsb, rms, offsets, seed=7))
-            rows.append(
-                {"config": name, "noise": noise, "build_s": build_s, "build_mb": build_mb, **r}
+    rows: list[dict[str, Any]] = []
+    exact: list = []
+    taxel_recon: Reconstructor | None = None
+    # One BLAS thread, as the reconstruction node runs (threads spin between small products).
+    with threadpool_limits(1):
+        for i, cfg in enumerate(configs):
+            pipe = Pipeline(cfg, tmp / f"c{i}")
+            if taxel_recon is None:
+                taxel_recon = pipe.recon  # the default's taxel order and parameters
+                t0 = time.perf_counter()
+                exact = truth(taxel_recon, forces, modules)
+                print(f"truth: {len(exact)} cases in {time.perf_counter() - t0:.0f} s")
+            lsb = value_count_farad(
+                taxel_recon.params["farad_per_count"], taxel_recon.params["shift"]
             )
-            print(
-                f"{name:44s} {noise:20s} build {build_s:5.2f} s {build_mb:5.0f} MB | "
-                f"{r['online_ms_median']:6.2f} ms | force {r['force_err_pct_median']:5.1f} % | "
-                f"CoP {r['cop_mm_median']:5.2f} mm | IoU {r['iou_median']:.2f}",
-                flush=True,
-            )
+            for noise in noises:
+                rms, offsets = NOISE[noise]
+                reps = 1 if rms == 0 and not offsets else repeats
+                cases = [c for s in range(reps) for c in noisy(exact, lsb, rms, offsets, 7 + s)]
+                r = evaluate(pipe, cases, taxel_recon)
+                rows.append(
+                    {
+                        **describe(cfg, pipe.recon),
+                        "noise": noise,
+                        "build_s": pipe.build_s,
+                        "build_mb": pipe.build_mb,
+                        **r,
+                    }
+                )
+                print(
+                    f"{cfg.key:14s} {noise:20s} build {pipe.build_s:5.2f} s "
+                    f"{pipe.build_mb:5.0f} MB | {r['online_ms_median']:6.2f} ms | force "
+                    f"{r['force_err_pct_median']:5.1f} % | CoP {r['cop_mm_median']:5.2f} mm | "
+                    f"IoU {r['iou_median']:.2f}",
+                    flush=True,
+                )
     results = {
-        "cases": len(exact or []),
-        "machine": "2-core machine, one process",
+        "protocol": {
+            "indenters": list(INDENTERS),
+            "forces_N": list(forces),
+            "positions": ["over a taxel", "between two", "between three"],
+            "modules": list(modules),
+            "repeats_noisy": repeats,
+            "cases": len(exact),
+        },
+        "machine": f"{platform.machine()}, {platform.python_version()}, one BLAS thread",
+        "quick": args.quick,
         "seconds": time.perf_counter() - t_start,
         "rows": rows,
     }
     (args.out / "results.json").write_text(json.dumps(results, indent=1))
     render(results, args.out)
-    print(
-        f"wrote {args.out / 'results.json'}, tradeoff.png, tradeoff.md "
-        f"in {results['seconds']:.0f} s"
-    )
+    print(f"wrote {args.out}/results.json, tradeoff.png, tradeoff.md in {results['seconds']:.0f} s")
 
 
 if __name__ == "__main__":
