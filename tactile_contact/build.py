@@ -122,6 +122,14 @@ def build_patch(patch: PatchLayout) -> tuple[dict[str, Any], dict[str, NDArray[A
     if reg is not None:
         arrays["regulariser"] = reg
     s, sen = patch.solver, patch.sensor
+    round_step = None
+    if s.refine == "round":
+        from tactile_contact.round_contact import round_tables
+
+        electrode = sen.taxel_radius if patch.model.taxel_average else 0.0
+        tables = round_tables(e.thickness, e.young, e.poisson, electrode)
+        arrays["round_table"], arrays["round_radii"] = tables.table, tables.radii
+        round_step = tables.step
     params = {
         "thickness": e.thickness,
         "young": e.young,
@@ -151,6 +159,7 @@ def build_patch(patch: PatchLayout) -> tuple[dict[str, Any], dict[str, NDArray[A
         "rel_threshold": s.area_rel_threshold,
         "min_pressure": s.area_min_pressure,
         "refine": s.refine,
+        "round_step": round_step,
     }
     manifest = {
         "patch": patch.name,

@@ -156,7 +156,10 @@ class SolverSpec:
         refine: ``none`` (default): keep the two-pass NNLS field; ``axisymmetric``: after NNLS,
             fit one round contact (Hertz-like or flat-punch-like profile) and keep it when it
             explains the data about as well (better force on clean data, but fragile with the
-            driver's real baseline offsets and ~10× slower: docs/reconstruction.md).
+            driver's real baseline offsets and ~10× slower: docs/reconstruction.md);
+            ``round``: fit one round contact through radial responses tabulated offline on a
+            0.1 mm grid (tactile_contact.round_contact), on every contact frame, and keep it
+            when it explains the data about as well as the grid solution.
     """
 
     method: str = "nnls_tikhonov"
@@ -481,7 +484,7 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
             so, "area_rel_threshold", sop, 0.1, lo=0.0, hi=1.0, hi_open=True
         ),
         area_min_pressure=c.number(so, "area_min_pressure", sop, 100.0, lo=0.0),
-        refine=c.choice(so, "refine", sop, "none", ("axisymmetric", "none")),
+        refine=c.choice(so, "refine", sop, "none", ("round", "axisymmetric", "none")),
     )
     patch = PatchLayout(str(name), frame, modules, elast, sensor, grid, model, solver)
     _check_patch(c, patch, path)

@@ -25,6 +25,7 @@ Methods ``tikhonov``, ``tsvd`` and ``pinv`` (the paper's) use the free product o
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Mapping
@@ -126,6 +127,15 @@ class Reconstructor:
         # Per-cell noise of the free solution, for the "violates non-negativity" test.
         self._cell_noise = self.noise * np.linalg.norm(self._inverse.astype(np.float64), axis=1)
         self._solvers: dict[bytes, Any] = {}
+        self._round = None
+        if p.get("refine") == "round":
+            from tactile_contact.round_contact import RoundTables
+
+            self._round = RoundTables(
+                np.asarray(bundle["round_radii"], dtype=np.float64),
+                float(p["round_step"]),
+                np.asarray(bundle["round_table"], dtype=np.float64),
+            )
 
     @classmethod
     def from_bundle(
@@ -223,6 +233,11 @@ class Reconstructor:
             if q.sum() <= 0 or np.any(q < -3.0 * self._cell_noise):
                 path = "nnls"
                 q, success, iterations, refined = self._constrained(delta, ok)
+        fit = None
+        if self._round is not None:
+            fit = self._round_fit(q, delta, ok)
+            if fit is not None:
+                q, refined = fit[0], True
         dt = time.perf_counter() - t0
         residual = float(np.linalg.norm((self.forward @ q - delta)[ok]))
         s = summarize(
@@ -232,6 +247,13 @@ class Reconstructor:
             float(self.params["rel_threshold"]),
             float(self.params["min_pressure"]),
         )
+        if fit is not None:
+            # The fit's own force, centre and disc, not their 2 mm-cell rendering (which
+            # loses the part of a contact beyond the skin mask and blurs a small disc).
+            f = fit[1]
+            s = dataclasses.replace(
+                s, total_force=f.force, cop=f.center, contact_area=math.pi * f.radius**2
+            )
         deflection = None
         if want_d:
             dg = self.deflection_grid
@@ -376,6 +398,33 @@ class Reconstructor:
         out = np.zeros_like(q)
         out[local] = best[1] * best[2]
         return out
+
+    def _round_fit(self, q: NDArray, delta: NDArray, ok: NDArray) -> tuple[NDArray, Any] | None:
+        """One round contact fitted near the grid solution's centre of pressure through the
+        bundle's radial responses (tactile_contact.round_contact): (its cell averages on the
+        traction grid, the fit), or None when it explains the data clearly worse than q."""
+        from tactile_contact.round_contact import fit_round_contact
+
+        pos = q > 0
+        if pos.any():
+            start = (q[pos] @ self._centers[pos]) / q[pos].sum()
+        else:
+            start = self.taxel_xy[int(np.argmax(np.where(ok, delta, -np.inf)))]
+        fit = fit_round_contact(self._round, self.taxel_xy[ok], delta[ok], start)
+        if fit is None:
+            return None
+        r_grid = float(np.linalg.norm(self.forward[ok] @ q - delta[ok]))
+        if fit.residual > FIT_RESIDUAL_FACTOR * r_grid + self.noise * math.sqrt(ok.sum()):
+            return None
+        p = self.params
+        young, nu = float(p["young"]), float(p["poisson"])
+        cell = self.traction_grid.cell_size
+        near = np.hypot(*(self._centers - fit.center).T) <= fit.radius + cell
+        out = np.zeros_like(q)
+        out[near] = fit.indenter(young, nu).pressure_on_cells(
+            self._centers[near], 0.5 * cell, fit.force, fit.center, young, nu
+        )
+        return out, fit
 
 
 #: Contact radii [m] tried by the axisymmetric refinement.

@@ -1,0 +1,195 @@
+"""Single round contact fitted to the taxel readings through precomputed radial responses.
+
+A skin pressed by one object most often carries one round contact. Its pressure is
+axisymmetric and so is each taxel's electrode, so the compression a taxel reads depends only on
+the distance r between its centre and the contact's: δ_i = F·R_s(|c − x_i|) for a contact of
+profile s (family and radius), force F [N] and centre c [m]. The responses R_s(r) [m/N] are
+computed offline (:func:`round_tables`) on a fine grid, far finer than any traction grid a
+solver can afford online, and the online fit (:func:`fit_round_contact`) is a search over centre
+and profile with the force in closed form: a few thousand table look-ups per frame.
+
+Profiles: flat-punch-like p ∝ (a² − r²)^(−½) and Hertz-like p ∝ (a² − r²)^(½), each for
+contact radii ``radii``. Between tabulated radii the response is interpolated linearly in
+log a. No ROS import.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.ndimage
+import scipy.optimize
+from numpy.typing import ArrayLike, NDArray
+
+from tactile_contact.elastic import regular_grid_operator
+from tactile_contact.grids import disc_quadrature
+from tactile_contact.indenters import FlatPunch, HertzSphere, effective_modulus
+
+#: Families of the profile library, in table order.
+FAMILIES = ("punch", "hertz")
+#: Default contact radii [m]: 0.75–8 mm, about 11 % apart.
+DEFAULT_RADII = tuple(float(a) for a in np.geomspace(0.75e-3, 8e-3, 23))
+
+
+@dataclass(frozen=True)
+class RoundTables:
+    """Radial responses of one electrode-averaged taxel to unit-force round contacts.
+
+    Attributes:
+        radii: (A,) contact radii [m], increasing.
+        step: spacing of the distance samples [m]; sample j is at r = j·step.
+        table: (len(FAMILIES), A, J) compression [m] per newton at distance j·step.
+    """
+
+    radii: NDArray[np.float64]
+    step: float
+    table: NDArray[np.float64]
+
+    @property
+    def reach(self) -> float:
+        """Largest tabulated distance [m]; beyond it the response is taken as zero."""
+        return self.step * (self.table.shape[-1] - 1)
+
+    def response(self, family: int, log_radius: float, r: ArrayLike) -> NDArray[np.float64]:
+        """R [m/N] at distances r [m] for a contact radius exp(log_radius) (interpolated)."""
+        la = np.log(self.radii)
+        t = float(np.clip(log_radius, la[0], la[-1]))
+        k = int(np.clip(np.searchsorted(la, t) - 1, 0, len(la) - 2))
+        w = (t - la[k]) / (la[k + 1] - la[k])
+        rows = self.table[family, k : k + 2]
+        return (1.0 - w) * _lookup(rows[0:1], self.step, r)[0] + w * _lookup(
+            rows[1:2], self.step, r
+        )[0]
+
+
+def _lookup(table: NDArray, step: float, r: ArrayLike) -> NDArray[np.float64]:
+    """Linear interpolation of each row of ``table`` (…, J) at distances r [m]; 0 beyond."""
+    u = np.asarray(r, dtype=np.float64) / step
+    j = np.minimum(u.astype(np.int64), table.shape[-1] - 2)
+    w = u - j
+    out = table[..., j] * (1.0 - w) + table[..., j + 1] * w
+    return np.where(u <= table.shape[-1] - 1, out, 0.0)
+
+
+def round_tables(
+    thickness: float,
+    young: float,
+    poisson: float,
+    taxel_radius: float,
+    radii: ArrayLike = DEFAULT_RADII,
+    *,
+    reach: float = 0.02,
+    step: float = 1.0e-4,
+    cell: float = 1.0e-4,
+) -> RoundTables:
+    """Tabulate R_s(r) [m/N] for r = 0 … ``reach`` in ``step`` (float64).
+
+    Each profile's exact cell averages on a regular ``cell`` grid are pushed through the Love
+    effective-deflection operator (zero-padded FFT, :func:`regular_grid_operator`); the
+    deflection field is then averaged over the electrode disc (8 × 24 points, bilinear) at
+    each distance. thickness h [m], young E [Pa], poisson ν, taxel_radius [m].
+    """
+    a = np.asarray(radii, dtype=np.float64)
+    if a.ndim != 1 or len(a) < 2 or not np.all(np.diff(a) > 0) or not a[0] > 0:
+        raise ValueError("radii must be at least two increasing positive radii [m]")
+    half = reach + taxel_radius + 2 * cell
+    n = 2 * math.ceil(half / cell) + 1  # odd: the contact centre is a cell centre
+    op = regular_grid_operator(n, n, cell, cell, thickness, young, poisson)
+    coords = (np.arange(n) - n // 2) * cell
+    gx, gy = np.meshgrid(coords, coords, indexing="ij")
+    centers = np.column_stack((gx.ravel(), gy.ravel()))
+    hs = np.full(2, 0.5 * cell)
+    q, w = disc_quadrature(taxel_radius, 8, 24)
+    dist = np.arange(round(reach / step) + 1) * step
+    px = (dist[:, None] + q[None, :, 0]) / cell + n // 2
+    py = (np.zeros_like(dist)[:, None] + q[None, :, 1]) / cell + n // 2
+    e_star = effective_modulus(young, poisson)
+    table = np.empty((len(FAMILIES), len(a), len(dist)))
+    for fi, fam in enumerate(FAMILIES):
+        for ai, radius in enumerate(a):
+            shape = FlatPunch(radius) if fam == "punch" else HertzSphere(4 * e_star * radius**3 / 3)
+            near = np.abs(centers).max(axis=1) <= radius + cell
+            p = np.zeros(len(centers))
+            p[near] = shape.pressure_on_cells(centers[near], hs, 1.0, (0.0, 0.0), young, poisson)
+            field = op.matvec(p).reshape(n, n)
+            vals = scipy.ndimage.map_coordinates(field, [px.ravel(), py.ravel()], order=1)
+            table[fi, ai] = vals.reshape(px.shape) @ w
+    return RoundTables(a, float(step), table)
+
+
+@dataclass(frozen=True)
+class RoundFit:
+    """Best single round contact: force [N], centre (x, y) [m], family index into FAMILIES,
+    contact radius [m] and the residual ‖F·R − δ‖ [m] over the fitted taxels."""
+
+    force: float
+    center: tuple[float, float]
+    family: int
+    radius: float
+    residual: float
+
+    def indenter(self, young: float, poisson: float) -> FlatPunch | HertzSphere:
+        """The fitted profile as an indenter of this contact radius at this force."""
+        if FAMILIES[self.family] == "punch":
+            return FlatPunch(self.radius)
+        e_star = effective_modulus(young, poisson)
+        return HertzSphere(4 * e_star * self.radius**3 / (3 * self.force))
+
+
+def fit_round_contact(
+    tables: RoundTables,
+    taxel_xy: ArrayLike,
+    delta: ArrayLike,
+    start_xy: ArrayLike,
+    *,
+    search: float = 3.0e-3,
+) -> RoundFit | None:
+    """Fit one round contact to compressions ``delta`` [m] at ``taxel_xy`` (K, 2) [m].
+
+    The centre is searched within ``search`` [m] of ``start_xy`` (0.5 mm lattice, every
+    profile), then polished (Nelder–Mead over centre and log-radius within the best family);
+    the force is the non-negative least-squares scale. None if no profile fits with F > 0.
+    """
+    xy = np.asarray(taxel_xy, dtype=np.float64)
+    d = np.asarray(delta, dtype=np.float64)
+    c0 = np.asarray(start_xy, dtype=np.float64)
+    local = np.hypot(*(xy - c0).T) <= tables.reach + search
+    if not local.any():
+        return None
+    xl, dl = xy[local], d[local]
+    rest = float(d[~local] @ d[~local])
+    g = np.arange(-search, search + 1e-12, 5.0e-4)
+    lat = c0 + np.stack(np.meshgrid(g, g, indexing="ij"), axis=-1).reshape(-1, 2)
+    r = np.hypot(lat[:, None, 0] - xl[None, :, 0], lat[:, None, 1] - xl[None, :, 1])
+    resp = _lookup(tables.table, tables.step, r)  # (families, radii, lattice, taxels)
+    num = resp @ dl
+    den = np.einsum("...k,...k->...", resp, resp)
+    force = np.where(den > 0, np.maximum(num, 0.0) / np.where(den > 0, den, 1.0), 0.0)
+    cost = float(dl @ dl) - 2 * force * num + force**2 * den
+    fi, ai, li = np.unravel_index(int(np.argmin(cost)), cost.shape)
+    if force[fi, ai, li] <= 0:
+        return None
+
+    def scaled(v: NDArray) -> tuple[float, float]:
+        rv = tables.response(int(fi), v[2], np.hypot(*(xl - v[:2]).T))
+        nn = float(rv @ rv)
+        f = max(float(rv @ dl), 0.0) / nn if nn > 0 else 0.0
+        return float(np.sum((f * rv - dl) ** 2)), f
+
+    x0 = np.array([*lat[li], math.log(tables.radii[ai])])
+    simplex = x0 + np.array([[0, 0, 0], [2.5e-4, 0, 0], [0, 2.5e-4, 0], [0, 0, 0.1]])
+    opt = scipy.optimize.minimize(
+        lambda v: scaled(v)[0],
+        x0,
+        method="Nelder-Mead",
+        options={"initial_simplex": simplex, "xatol": 1e-5, "fatol": 1e-18, "maxfev": 300},
+    )
+    v = opt.x if opt.fun <= cost[fi, ai, li] else x0
+    v[2] = float(np.clip(v[2], *np.log(tables.radii[[0, -1]])))
+    res, f = scaled(v)
+    if f <= 0:
+        return None
+    center = (float(v[0]), float(v[1]))
+    return RoundFit(f, center, int(fi), float(np.exp(v[2])), math.sqrt(res + rest))
