@@ -90,9 +90,15 @@ CONFIGS = [
     Config("nnls+tikh", "NNLS+Tikhonov λ 0.1, 1 pass", "solver", passes=1),
     Config(
         "refine",
-        "default + round-contact refinement",
+        "default + axisymmetric refinement (2 mm cells, lattice)",
         "solver",
         {"solver": {"refine": "axisymmetric"}},
+    ),
+    Config(
+        "round",
+        "default + round-contact fit (0.1 mm radial tables)",
+        "solver",
+        {"solver": {"refine": "round"}},
     ),
     Config("f64", "default, float64 products", "dtype", dtype="float64"),
     Config("pinv f64", "pinv, float64 products", "dtype", PINV, dtype="float64"),
@@ -119,7 +125,7 @@ CONFIGS = [
         {**BC025, "grid": {"traction_cell": 0.003}},
     ),
 ]
-QUICK = ("default", "BC 0.25", "grid+pinv", "pinv", "f64")
+QUICK = ("default", "round", "BC 0.25", "grid+pinv", "pinv", "f64")
 #: name → (noise RMS [counts], baseline offsets ±½ count?)
 NOISE = {
     "none": (0.0, False),
@@ -321,6 +327,8 @@ def describe(cfg: Config, recon: Reconstructor) -> dict[str, Any]:
         solver = "NNLS" if p["tikhonov"] == 0 else "NNLS+Tikhonov"
     if p.get("refine") == "axisymmetric":
         solver += " + refine"
+    elif p.get("refine") == "round":
+        solver += " + round fit"
     return {
         "key": cfg.key,
         "config": cfg.name,
@@ -337,7 +345,7 @@ def describe(cfg: Config, recon: Reconstructor) -> dict[str, Any]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "bench")
-    ap.add_argument("--quick", action="store_true", help="5 configurations, 1 noise, 36 cases")
+    ap.add_argument("--quick", action="store_true", help="6 configurations, 1 noise, 36 cases")
     ap.add_argument("--replot", action="store_true", help="redraw from OUT/results.json")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
