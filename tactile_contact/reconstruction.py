@@ -15,9 +15,12 @@
    carrying at least ``seed_fraction`` of the first pass's peak. The second pass removes the
    broad, nearly invisible pressure that a ν = 0.5 layer admits (its response to a uniform
    load vanishes) and that otherwise inflates the net force (docs/reconstruction.md).
-   With ``refine: axisymmetric`` (default) a single round contact (Hertz-like or punch-like
-   profile, radius and centre searched near the NNLS solution) replaces the NNLS field when it
-   explains the data about as well (``ContactResult.refined``).
+   With ``refine: axisymmetric`` (not the default) a single round contact (Hertz-like or
+   punch-like profile, radius and centre searched near the NNLS solution) replaces the NNLS
+   field when it explains the data about as well (``ContactResult.refined``).
+   With ``refine: round`` (not the default) the same is done on every contact frame through
+   radial responses tabulated offline on a 0.1 mm grid (:mod:`tactile_contact.round_contact`),
+   and the summary takes the fit's own force, centre and disc area.
 5. Summary (total force, CoP, area, peak) and, when wanted, the deflection grid = G·q.
 
 Methods ``tikhonov``, ``tsvd`` and ``pinv`` (the paper's) use the free product only.

@@ -58,10 +58,8 @@ class RoundTables:
         t = float(np.clip(log_radius, la[0], la[-1]))
         k = int(np.clip(np.searchsorted(la, t) - 1, 0, len(la) - 2))
         w = (t - la[k]) / (la[k + 1] - la[k])
-        rows = self.table[family, k : k + 2]
-        return (1.0 - w) * _lookup(rows[0:1], self.step, r)[0] + w * _lookup(
-            rows[1:2], self.step, r
-        )[0]
+        lo, hi = _lookup(self.table[family, k : k + 2], self.step, r)
+        return (1.0 - w) * lo + w * hi
 
 
 def _lookup(table: NDArray, step: float, r: ArrayLike) -> NDArray[np.float64]:
