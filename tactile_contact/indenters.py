@@ -139,6 +139,13 @@ class HertzSphere(Indenter):
         if not (math.isfinite(self.radius) and self.radius > 0):
             raise ValueError(f"sphere radius must be finite and > 0 m, got {self.radius!r}")
 
+    @classmethod
+    def with_contact_radius(
+        cls, a: float, force: float, young: float, poisson: float
+    ) -> HertzSphere:
+        """The sphere whose Hertz contact radius is ``a`` [m] at ``force`` [N]."""
+        return cls(4.0 * effective_modulus(young, poisson) * a**3 / (3.0 * force))
+
     def contact_radius(self, force: float, young: float, poisson: float) -> float:
         """Hertz contact radius a [m]."""
         return (3.0 * force * self.radius / (4.0 * effective_modulus(young, poisson))) ** (1 / 3)

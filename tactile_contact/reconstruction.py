@@ -338,7 +338,7 @@ class Reconstructor:
         NNLS centre of pressure, 0.75 mm steps); the force of each candidate is the
         non-negative least-squares scale. The candidate's exact cell averages replace q.
         """
-        from tactile_contact.indenters import FlatPunch, HertzSphere, effective_modulus
+        from tactile_contact.indenters import FlatPunch, HertzSphere
 
         pos = q > 0
         if not pos.any():
@@ -346,7 +346,6 @@ class Reconstructor:
         cop = (q[pos] @ self._centers[pos]) / q[pos].sum()
         p = self.params
         young, nu = float(p["young"]), float(p["poisson"])
-        e_star = effective_modulus(young, nu)
         reach = max(FIT_RADII) + 1.5e-3 + self.traction_grid.cell_size
         local = np.hypot(*(self._centers - cop).T) <= reach
         cen = self._centers[local]
@@ -354,7 +353,7 @@ class Reconstructor:
         c_loc = self.forward[np.ix_(ok, local)]
         d = delta[ok]
         shapes = [FlatPunch(a) for a in FIT_RADII]
-        shapes += [HertzSphere(4.0 * e_star * a**3 / 3.0) for a in FIT_RADII]  # a at 1 N
+        shapes += [HertzSphere.with_contact_radius(a, 1.0, young, nu) for a in FIT_RADII]
 
         def score(shape, c):
             unit = shape.pressure_on_cells(cen, hs, 1.0, c, young, nu)

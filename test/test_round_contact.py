@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from tactile_contact.build import build_patch
 from tactile_contact.bundle import save_bundle
 from tactile_contact.forward import ForwardModel
-from tactile_contact.indenters import FlatPunch, HertzSphere, effective_modulus
+from tactile_contact.indenters import FlatPunch, HertzSphere
 from tactile_contact.layout import parse_layout
 from tactile_contact.reconstruction import Reconstructor
 from tactile_contact.round_contact import FAMILIES, fit_round_contact, round_tables
@@ -33,7 +33,7 @@ def tables():
 def _indenter(family: str, radius: float):
     if family == "punch":
         return FlatPunch(radius)
-    return HertzSphere(4 * effective_modulus(E, NU) * radius**3 / 3)  # radius a at 1 N
+    return HertzSphere.with_contact_radius(radius, 1.0, E, NU)
 
 
 @pytest.fixture(scope="module")
