@@ -108,7 +108,7 @@ def test_quantisation_is_realistic(cases):
 def test_centre_of_pressure_median_within_1mm(default_rows):
     # Over the contacts the default detects. Its contact threshold (≈ 1 count) misses readings
     # of one count, which an idle skin's baseline offsets also produce: 25 % of the 0.2 N cases
-    # are seen, 83 % at 1 N (contacts between three taxels), all at 3 N. Measured: 0.32 mm.
+    # are seen, 83 % at 1 N (contacts between three taxels), all at 3 N. Measured: 0.29 mm.
     cop = np.array([r[4] for r in default_rows])
     seen = np.isfinite(cop)
     assert np.median(cop[seen]) <= 1.0
@@ -118,21 +118,24 @@ def test_centre_of_pressure_median_within_1mm(default_rows):
 
 
 def test_force_at_3N_and_overall_regression_bounds(default_rows):
-    # Measured with the default (two-pass NNLS, no refinement): 40 % overall, 32 % at 3 N,
-    # 36 % over a taxel at >= 1 N (docs/reconstruction.md); bounds guard against regressions.
+    # Measured with the default (two-pass NNLS, no refinement): 46 % overall, 33 % at 3 N,
+    # 40 % over a taxel at >= 1 N (40 %, 32 %, 36 % against the truth's former 4 × 12-point
+    # electrode average, which was 6 % low under small contacts); bounds guard against
+    # regressions.
     err = np.array([r[3] for r in default_rows])
     f3 = np.array([r[3] for r in default_rows if r[2] == 3.0])
     assert np.median(f3) <= 36.0
-    assert np.median(err) <= 45.0
+    assert np.median(err) <= 50.0
     over = [r[3] for r in default_rows if r[1] == "over" and r[2] >= 1.0]
-    assert np.median(over) <= 40.0
+    assert np.median(over) <= 45.0
 
 
 def test_default_is_robust_to_the_drivers_baseline_offsets(tmp_path_factory, cases):
     """Why the default does not refine: a driver's baseline is a mean of quantised samples, so
-    every taxel, loaded or not, carries a fixed offset of up to ±½ count. The round-contact
-    refinement wins on ideally quantised data (24 % vs 40 % median force error) and loses with
-    these offsets (61 % vs 45 %)."""
+    every taxel, loaded or not, carries a fixed offset of up to ±½ count. The axisymmetric
+    refinement (on the 2 mm cells) won on ideally quantised data (24 % vs 40 % median force
+    error) and loses with these offsets (48 % vs 43 %). ``refine: round`` does not: see
+    test_round_contact_fit_recovers_force_far_better."""
     recon, cs = cases
     refined = _recon(tmp_path_factory, refine="axisymmetric")
     lsb = value_count_farad(recon.params["farad_per_count"], recon.params["shift"])
@@ -148,9 +151,8 @@ def test_default_is_robust_to_the_drivers_baseline_offsets(tmp_path_factory, cas
 
 def test_round_contact_fit_recovers_force_far_better(tmp_path_factory, cases, default_rows):
     """``refine: round`` (tactile_contact.round_contact) on the same cases, with and without
-    the driver's baseline offsets. Measured: 17 % median force error on the ideally quantised
-    cases (≥ 1 N: 11 %) against the default's 40 %; with offsets 32 % against 54 % (144-case
-    sweep, docs/benchmarks.md)."""
+    the driver's baseline offsets. Measured: 17 % median force error on these cases (≥ 1 N:
+    11 %) against the default's 46 %; with offsets 27 % against 43 %."""
     recon, cs = cases
     fitted = _recon(tmp_path_factory, refine="round")
     rows = _errors(fitted, cs)
