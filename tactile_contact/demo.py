@@ -205,6 +205,8 @@ def run(
             # 0.15 count RMS after the shift: the noise of the accuracy study
             # (docs/reconstruction.md).
             "noise_cdc": 0.6,
+            # ±½ count rest offsets, as an imperfectly calibrated module has.
+            "rest_spread_cdc": 2.0,
             "start_delay_s": START_DELAY_S,
         },
     )

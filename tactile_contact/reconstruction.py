@@ -412,7 +412,13 @@ class Reconstructor:
             start = (q[pos] @ self._centers[pos]) / q[pos].sum()
         else:
             start = self.taxel_xy[int(np.argmax(np.where(ok, delta, -np.inf)))]
-        fit = fit_round_contact(self._round, self.taxel_xy[ok], delta[ok], start)
+        fit = fit_round_contact(
+            self._round,
+            self.taxel_xy[ok],
+            delta[ok],
+            start,
+            sigma=self.noise if self.noise > 0 else None,
+        )
         if fit is None:
             return None
         r_grid = float(np.linalg.norm(self.forward[ok] @ q - delta[ok]))

@@ -117,57 +117,63 @@ def test_centre_of_pressure_median_within_1mm(default_rows):
     assert all(np.isfinite(r[4]) for r in default_rows if r[2] >= 3.0)
 
 
+@pytest.fixture(scope="module")
+def grid_recon(tmp_path_factory):
+    """The grid solution alone (``refine: none``: two-pass NNLS, the earlier default)."""
+    return _recon(tmp_path_factory, refine="none")
+
+
+@pytest.fixture(scope="module")
+def grid_rows(grid_recon, cases):
+    return _errors(grid_recon, cases[1])
+
+
+def _offset_cases(recon, cs):
+    # A driver's baseline is a mean of quantised samples, so every taxel, loaded or not,
+    # carries a fixed offset of up to ±½ count on top of the reading's own quantisation.
+    lsb = value_count_farad(recon.params["farad_per_count"], recon.params["shift"])
+    rng = np.random.default_rng(3)
+    return [(i, p, f, c, dcq + rng.uniform(-0.5, 0.5, dcq.shape) * lsb) for i, p, f, c, dcq in cs]
+
+
 def test_force_at_3N_and_overall_regression_bounds(default_rows):
-    # Measured with the default (two-pass NNLS, no refinement): 46 % overall, 33 % at 3 N,
-    # 40 % over a taxel at >= 1 N (40 %, 32 %, 36 % against the truth's former 4 × 12-point
-    # electrode average, which was 6 % low under small contacts); bounds guard against
-    # regressions.
+    # Measured with the default (round-contact posterior mean): 27.5 % overall (a third of
+    # the cases are 0.2 N, mostly below the contact threshold: 100 %), 9.2 % at 3 N, 10.1 %
+    # at >= 1 N, 5.9 % over a taxel at >= 1 N; bounds guard against regressions.
     err = np.array([r[3] for r in default_rows])
     f3 = np.array([r[3] for r in default_rows if r[2] == 3.0])
-    assert np.median(f3) <= 36.0
-    assert np.median(err) <= 50.0
     over = [r[3] for r in default_rows if r[1] == "over" and r[2] >= 1.0]
-    assert np.median(over) <= 45.0
+    assert np.median(f3) <= 14.0
+    assert np.median(err) <= 32.0
+    assert np.median(over) <= 10.0
 
 
-def test_default_is_robust_to_the_drivers_baseline_offsets(tmp_path_factory, cases):
-    """Why the default does not refine: a driver's baseline is a mean of quantised samples, so
-    every taxel, loaded or not, carries a fixed offset of up to ±½ count. The axisymmetric
-    refinement (on the 2 mm cells) won on ideally quantised data (24 % vs 40 % median force
-    error) and loses with these offsets (48 % vs 43 %). ``refine: round`` does not: see
-    test_round_contact_fit_recovers_force_far_better."""
+def test_default_far_better_than_the_grid_solution(default_rows, grid_rows):
+    """The round-contact posterior (tactile_contact.round_contact) against the two-pass NNLS
+    field it refines, on the same cases. Measured: 27.5 % against 46.1 % overall, 10.1 %
+    against 32.5 % at >= 1 N."""
+    ours = np.median([r[3] for r in default_rows])
+    theirs = np.median([r[3] for r in grid_rows])
+    assert ours <= 0.7 * theirs
+    assert np.median([r[3] for r in default_rows if r[2] >= 1.0]) <= 15.0
+
+
+def test_default_is_robust_to_the_drivers_baseline_offsets(tmp_path_factory, cases, grid_recon):
+    """With the driver's fixed baseline offsets the default still beats the grid solution and
+    the older axisymmetric refinement on the 2 mm cells (which won on ideally quantised data
+    and lost with offsets). Measured: 37.7 % against 42.7 % (grid) and 47.8 % (axisymmetric).
+    The round fit's least-squares point did better here (27 %) but rode the fixed offsets of a
+    static press through the whole chain (+26-43 %, test_pipeline.py): see
+    test_round_contact.py::test_posterior_is_steadier_than_the_least_squares_point_under_fixed_offsets."""
     recon, cs = cases
-    refined = _recon(tmp_path_factory, refine="axisymmetric")
-    lsb = value_count_farad(recon.params["farad_per_count"], recon.params["shift"])
-    rng = np.random.default_rng(3)
-    offset_cases = [
-        (i, p, f, c, dcq + rng.uniform(-0.5, 0.5, dcq.shape) * lsb) for i, p, f, c, dcq in cs
-    ]
+    offset_cases = _offset_cases(recon, cs)
     ours = np.median([r[3] for r in _errors(recon, offset_cases)])
-    theirs = np.median([r[3] for r in _errors(refined, offset_cases)])
-    assert ours <= 50.0
+    grid = np.median([r[3] for r in _errors(grid_recon, offset_cases)])
+    axi = _recon(tmp_path_factory, refine="axisymmetric")
+    theirs = np.median([r[3] for r in _errors(axi, offset_cases)])
+    assert ours <= 42.0
+    assert ours < grid
     assert ours < theirs
-
-
-def test_round_contact_fit_recovers_force_far_better(tmp_path_factory, cases, default_rows):
-    """``refine: round`` (tactile_contact.round_contact) on the same cases, with and without
-    the driver's baseline offsets. Measured: 17 % median force error on these cases (≥ 1 N:
-    11 %) against the default's 46 %; with offsets 27 % against 43 %."""
-    recon, cs = cases
-    fitted = _recon(tmp_path_factory, refine="round")
-    rows = _errors(fitted, cs)
-    ours = np.median([r[3] for r in rows])
-    assert ours <= 0.6 * np.median([r[3] for r in default_rows])
-    assert np.median([r[3] for r in rows if r[2] >= 1.0]) <= 20.0
-    cop = np.array([r[4] for r in rows])
-    assert np.median(cop[np.isfinite(cop)]) <= 1.0
-    lsb = value_count_farad(recon.params["farad_per_count"], recon.params["shift"])
-    rng = np.random.default_rng(3)
-    offset_cases = [
-        (i, p, f, c, dcq + rng.uniform(-0.5, 0.5, dcq.shape) * lsb) for i, p, f, c, dcq in cs
-    ]
-    with_offsets = np.median([r[3] for r in _errors(fitted, offset_cases)])
-    assert with_offsets < np.median([r[3] for r in _errors(recon, offset_cases)])
 
 
 @pytest.mark.xfail(
@@ -181,7 +187,7 @@ def test_force_median_within_10_percent(default_rows):
 
 def test_default_beats_the_papers_pinv_on_force(tmp_path_factory, cases, default_rows):
     _, cs = cases
-    pinv = _errors(_recon(tmp_path_factory, method="pinv"), cs)
+    pinv = _errors(_recon(tmp_path_factory, method="pinv", refine="none"), cs)
     ours = np.median([r[3] for r in default_rows if r[2] >= 1.0])
     theirs = np.median([r[3] for r in pinv if r[2] >= 1.0])
     assert ours < 0.6 * theirs

@@ -64,7 +64,7 @@ def default(tmp_path_factory: pytest.TempPathFactory) -> Reconstructor:
 
 @pytest.fixture(scope="module")
 def pinv(tmp_path_factory: pytest.TempPathFactory) -> Reconstructor:
-    return _recon(tmp_path_factory, solver={"method": "pinv"})
+    return _recon(tmp_path_factory, solver={"method": "pinv", "refine": "none"})
 
 
 @pytest.fixture(scope="module")

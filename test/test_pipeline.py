@@ -44,6 +44,10 @@ def run_press(context: object, bundles: Path, seconds: float) -> object:
             # 0.15 count RMS after the shift: the noise of the accuracy study
             # (docs/reconstruction.md).
             "noise_cdc": 0.6,
+            # Rest offsets of ±½ count (imperfect firmware calibration, as on hardware). At
+            # exactly zero every channel rests on a quantisation step, so every seed gives the
+            # same quantisation errors: one draw, not a test of the reconstruction.
+            "rest_spread_cdc": 2.0,
             "start_delay_s": 1.0,
             "force_n": 2.0,
             "indenter_radius_m": 0.006,

@@ -17,7 +17,13 @@ from tactile_contact.forward import ForwardModel
 from tactile_contact.indenters import FlatPunch, HertzSphere
 from tactile_contact.layout import parse_layout
 from tactile_contact.reconstruction import Reconstructor
-from tactile_contact.round_contact import FAMILIES, fit_round_contact, round_tables
+from tactile_contact.round_contact import (
+    FAMILIES,
+    RoundFit,
+    fit_round_contact,
+    posterior_contact,
+    round_tables,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = yaml.safe_load((ROOT / "config" / "hexagon_patch.yaml").read_text())
@@ -108,6 +114,69 @@ def test_fit_is_finite_or_none_on_any_readings(tables, seed, scale):
         assert RADII[0] <= fit.radius <= RADII[-1]
 
 
+SQUARE = np.array([[i * 5.5e-3, j * 5.5e-3] for i in range(-3, 4) for j in range(-3, 4)])
+
+
+def _start(centre, radius=1.5e-3, family=1):
+    return RoundFit(1.0, tuple(centre), family, radius, 0.0)
+
+
+def test_posterior_concentrates_on_the_exact_contact_when_the_error_is_small(tables):
+    # Exact data of a tabulated profile centred on a lattice node: as sigma → 0 the posterior
+    # collapses onto it (the limit is the profile-likelihood maximum).
+    centre = np.array([0.5e-3, -0.25e-3])
+    delta = 1.3 * tables.response(0, np.log(RADII[2]), np.hypot(*(SQUARE - centre).T))
+    post = posterior_contact(tables, SQUARE, delta, _start(centre + 0.5e-3), sigma=1e-9)
+    assert post.force == pytest.approx(1.3, rel=1e-9)
+    assert post.center == pytest.approx(tuple(centre), abs=1e-12)
+    assert post.radius == pytest.approx(RADII[2], rel=1e-9)
+    assert FAMILIES[post.family] == "punch"
+
+
+def test_posterior_is_mirror_symmetric_and_homogeneous(tables):
+    rng = np.random.default_rng(5)
+    centre = np.array([0.7e-3, 0.0])
+    delta = 2.0 * tables.response(1, np.log(2.2e-3), np.hypot(*(SQUARE - centre).T))
+    delta += rng.normal(0, 3e-6, delta.shape)
+    post = posterior_contact(tables, SQUARE, delta, _start(centre), sigma=5e-6)
+    # Mirror the taxels, the data and the start about x = 0: the answer mirrors.
+    mirrored = SQUARE * [-1, 1]
+    post_m = posterior_contact(tables, mirrored, delta, _start(centre * [-1, 1]), sigma=5e-6)
+    assert post_m.force == pytest.approx(post.force, rel=1e-9)
+    assert post_m.center == pytest.approx((-post.center[0], post.center[1]), abs=1e-12)
+    # k × the readings and k × the error: k × the force, the same contact.
+    post_k = posterior_contact(tables, SQUARE, 3 * delta, _start(centre), sigma=15e-6)
+    assert post_k.force == pytest.approx(3 * post.force, rel=1e-9)
+    assert post_k.center == pytest.approx(post.center, abs=1e-12)
+    assert post_k.radius == pytest.approx(post.radius, rel=1e-9)
+
+
+def test_posterior_is_steadier_than_the_least_squares_point_under_fixed_offsets(tables):
+    # Why the Reconstructor reports the posterior: one taxel loaded (≈ 30 counts), neighbours
+    # reading a few counts, and each taxel off by a fixed quantisation / baseline error of up
+    # to ±1 count (≈ 10 µm). Over independent draws of those errors the least-squares force
+    # spreads more than the posterior mean's (measured: median |error| 5.3 % against 9.8 %;
+    # mean error −4.4 % against −5.9 %).
+    lsb = 10.5e-6
+    truth = 2.0 * tables.response(1, np.log(3.0e-3), np.hypot(*SQUARE.T))
+    rng = np.random.default_rng(11)
+    ls_err, post_err = [], []
+    for _ in range(40):
+        d = np.rint(truth / lsb + rng.normal(0, 0.15, truth.shape)) * lsb
+        d += rng.uniform(-0.5, 0.5, d.shape) * lsb
+        ls = fit_round_contact(tables, SQUARE, d, start_xy=(0.0, 0.0))
+        post = fit_round_contact(tables, SQUARE, d, start_xy=(0.0, 0.0), sigma=6e-6)
+        ls_err.append(ls.force / 2.0 - 1)
+        post_err.append(post.force / 2.0 - 1)
+        assert post.residual == ls.residual
+    assert np.median(np.abs(post_err)) < 0.8 * np.median(np.abs(ls_err))
+
+
+def test_posterior_rejects_a_bad_sigma(tables):
+    with pytest.raises(ValueError, match="sigma"):
+        posterior_contact(tables, SQUARE, np.ones(len(SQUARE)) * 1e-5, _start((0, 0)), sigma=0)
+
+
 def test_round_refinement_in_the_reconstructor(tmp_path):
     doc = copy.deepcopy(DOC)
     doc["patches"][0]["solver"]["refine"] = "round"
@@ -119,11 +188,11 @@ def test_round_refinement_in_the_reconstructor(tmp_path):
     centre = (r.taxel_xy[51] + r.taxel_xy[55]) / 2
     res = r.solve_deflection(fm.compression(HertzSphere(6e-3), 2.0, centre))
     assert res.refined and res.in_contact
-    # Measured 1.81 N on noise-free data: between two taxels size trades against force, and
-    # the small differences between the truth's contact-centred 0.25 mm cells and the tables
-    # move the fit along that valley.
+    # Between two taxels size, centre and force trade off along a valley; the default reports
+    # the posterior mean over it (noise = 6 µm), which on these noise-free data sits 0.49 mm
+    # from the centre (the least-squares point: 0.2 mm, 1.81 N), at 2.02 N.
     assert res.total_force == pytest.approx(2.0, rel=0.12)
-    assert np.hypot(*(np.asarray(res.cop) - centre)) < 0.3e-3
+    assert np.hypot(*(np.asarray(res.cop) - centre)) < 0.6e-3
     assert np.all(res.traction >= 0) and res.traction.sum() > 0
     # two separate contacts: one round contact cannot explain them, the grid solution stays
     two = fm.compression(HertzSphere(6e-3), 1.0, r.taxel_xy[20])
