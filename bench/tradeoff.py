@@ -72,11 +72,14 @@ class Config:
     passes: int = 2
 
 
-PINV = {"solver": {"method": "pinv"}}
-TIKH = {"solver": {"method": "tikhonov"}}
+PINV = {"solver": {"method": "pinv", "refine": "none"}}
+TIKH = {"solver": {"method": "tikhonov", "refine": "none"}}
+NONE = {"solver": {"refine": "none"}}
 BC025 = {"model": {"kind": "boussinesq", "psi": 0.25}}
 CONFIGS = [
-    Config("default", "default: Love, 2 mm, taxels, 2-pass NNLS+Tikhonov, f32", "default"),
+    Config(
+        "default", "default: Love, 2 mm, taxels, 2-pass NNLS+Tikhonov, round fit, f32", "default"
+    ),
     Config("BC exact", "B-C, Ψ exact", "model", {"model": {"kind": "boussinesq"}}),
     Config("BC 0.25", "B-C, Ψ = 0.25", "model", BC025),
     Config("1 mm", "1 mm cells", "cell", {"grid": {"traction_cell": 0.001}}),
@@ -85,21 +88,23 @@ CONFIGS = [
     Config("grid", "interpolated grid, default solver", "measurement", mode="grid"),
     Config("pinv", "pinv (rcond 1e-3)", "solver", PINV),
     Config("tikhonov", "Tikhonov λ 0.1·s₁ (free)", "solver", TIKH),
-    Config("tsvd", "TSVD rank 20", "solver", {"solver": {"method": "tsvd", "tsvd_rank": 20}}),
-    Config("nnls", "NNLS, 1 pass", "solver", {"solver": {"tikhonov": 0.0}}, passes=1),
-    Config("nnls+tikh", "NNLS+Tikhonov λ 0.1, 1 pass", "solver", passes=1),
+    Config(
+        "tsvd",
+        "TSVD rank 20",
+        "solver",
+        {"solver": {"method": "tsvd", "tsvd_rank": 20, "refine": "none"}},
+    ),
+    Config(
+        "nnls", "NNLS, 1 pass", "solver", {"solver": {"tikhonov": 0.0, "refine": "none"}}, passes=1
+    ),
+    Config("nnls+tikh", "NNLS+Tikhonov λ 0.1, 1 pass", "solver", NONE, passes=1),
     Config(
         "refine",
         "default + axisymmetric refinement (2 mm cells, lattice)",
         "solver",
         {"solver": {"refine": "axisymmetric"}},
     ),
-    Config(
-        "round",
-        "default + round-contact fit (0.1 mm radial tables)",
-        "solver",
-        {"solver": {"refine": "round"}},
-    ),
+    Config("grid only", "2-pass NNLS+Tikhonov, no round fit (former default)", "solver", NONE),
     Config("f64", "default, float64 products", "dtype", dtype="float64"),
     Config("pinv f64", "pinv, float64 products", "dtype", PINV, dtype="float64"),
     Config("grid+pinv", "paper: Love, interpolated grid, pinv", "pair", PINV, mode="grid"),
@@ -125,7 +130,7 @@ CONFIGS = [
         {**BC025, "grid": {"traction_cell": 0.003}},
     ),
 ]
-QUICK = ("default", "round", "BC 0.25", "grid+pinv", "pinv", "f64")
+QUICK = ("default", "grid only", "BC 0.25", "grid+pinv", "pinv", "f64")
 #: name → (noise RMS [counts], baseline offsets ±½ count?)
 NOISE = {
     "none": (0.0, False),
