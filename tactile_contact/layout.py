@@ -155,7 +155,7 @@ class SolverSpec:
         area_min_pressure: ... and above this pressure [Pa].
         refine: ``round`` (default): on every contact frame, fit one round contact through
             radial responses tabulated offline on a 0.1 mm grid (tactile_contact.round_contact),
-            report its posterior mean (``noise`` as the per-taxel error) and keep it when it
+            report its posterior mean (per-taxel error: one count / √6) and keep it when it
             explains the data about as well as the grid solution; ``none``: keep the two-pass
             NNLS field (≈ 4× cheaper per contact frame, far worse force);
             ``axisymmetric``: the older fit on the 2 mm traction cells after NNLS (fragile

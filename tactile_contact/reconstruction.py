@@ -42,7 +42,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from tactile_contact.bundle import Bundle, load_bundle
 from tactile_contact.grids import Grid, distance_to_points
-from tactile_contact.sensor import delta_c_in_range, delta_c_to_compression
+from tactile_contact.sensor import delta_c_in_range, delta_c_to_compression, value_count_farad
 from tactile_contact.summary import summarize
 
 
@@ -107,6 +107,7 @@ class Reconstructor:
         params: read-only mapping of the physical and solver parameters (thickness [m],
             young [Pa], poisson, epsilon_r, taxel_radius [m], area [m²], method, ...).
         forward: (K, N) matrix C [m/Pa] from traction cells to taxel compressions.
+        fit_sigma: per-taxel error [m] the round fit's posterior assumes (one count / √6).
     """
 
     def __init__(self, bundle: Bundle) -> None:
@@ -131,6 +132,12 @@ class Reconstructor:
         self._cell_noise = self.noise * np.linalg.norm(self._inverse.astype(np.float64), axis=1)
         self._solvers: dict[bytes, Any] = {}
         self._round = None
+        # The round fit's per-taxel error: an 8-bit reading minus a baseline, each rounded to a
+        # count, errs by two independent roundings (1/√6 count RMS); the converter noise of a
+        # few tenths of a count adds little. Not ``noise``: that one also covers model error
+        # for the free solution's non-negativity test.
+        lsb = value_count_farad(float(p["farad_per_count"]), int(p["shift"]))
+        self.fit_sigma: float = float(self.compression(np.array([lsb]))[0]) / math.sqrt(6.0)
         if p.get("refine") == "round":
             from tactile_contact.round_contact import RoundTables
 
@@ -417,7 +424,7 @@ class Reconstructor:
             self.taxel_xy[ok],
             delta[ok],
             start,
-            sigma=self.noise if self.noise > 0 else None,
+            sigma=self.fit_sigma if self.fit_sigma > 0 else None,
         )
         if fit is None:
             return None

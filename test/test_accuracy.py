@@ -108,7 +108,8 @@ def test_quantisation_is_realistic(cases):
 def test_centre_of_pressure_median_within_1mm(default_rows):
     # Over the contacts the default detects. Its contact threshold (≈ 1 count) misses readings
     # of one count, which an idle skin's baseline offsets also produce: 25 % of the 0.2 N cases
-    # are seen, 83 % at 1 N (contacts between three taxels), all at 3 N. Measured: 0.29 mm.
+    # are seen, 83 % at 1 N (contacts between three taxels), all at 3 N. Measured: 0.20 mm
+    # (the grid solution alone: 0.29 mm).
     cop = np.array([r[4] for r in default_rows])
     seen = np.isfinite(cop)
     assert np.median(cop[seen]) <= 1.0
@@ -137,9 +138,9 @@ def _offset_cases(recon, cs):
 
 
 def test_force_at_3N_and_overall_regression_bounds(default_rows):
-    # Measured with the default (round-contact posterior mean): 27.5 % overall (a third of
-    # the cases are 0.2 N, mostly below the contact threshold: 100 %), 9.2 % at 3 N, 10.1 %
-    # at >= 1 N, 5.9 % over a taxel at >= 1 N; bounds guard against regressions.
+    # Measured with the default (round-contact posterior mean): 26.1 % overall (a third of
+    # the cases are 0.2 N, mostly below the contact threshold: 100 %), 9.0 % at 3 N, 12.6 %
+    # at >= 1 N, 5.1 % over a taxel at >= 1 N; bounds guard against regressions.
     err = np.array([r[3] for r in default_rows])
     f3 = np.array([r[3] for r in default_rows if r[2] == 3.0])
     over = [r[3] for r in default_rows if r[1] == "over" and r[2] >= 1.0]
@@ -150,7 +151,7 @@ def test_force_at_3N_and_overall_regression_bounds(default_rows):
 
 def test_default_far_better_than_the_grid_solution(default_rows, grid_rows):
     """The round-contact posterior (tactile_contact.round_contact) against the two-pass NNLS
-    field it refines, on the same cases. Measured: 27.5 % against 46.1 % overall, 10.1 %
+    field it refines, on the same cases. Measured: 26.1 % against 46.1 % overall, 12.6 %
     against 32.5 % at >= 1 N."""
     ours = np.median([r[3] for r in default_rows])
     theirs = np.median([r[3] for r in grid_rows])
@@ -161,7 +162,7 @@ def test_default_far_better_than_the_grid_solution(default_rows, grid_rows):
 def test_default_is_robust_to_the_drivers_baseline_offsets(tmp_path_factory, cases, grid_recon):
     """With the driver's fixed baseline offsets the default still beats the grid solution and
     the older axisymmetric refinement on the 2 mm cells (which won on ideally quantised data
-    and lost with offsets). Measured: 37.7 % against 42.7 % (grid) and 47.8 % (axisymmetric).
+    and lost with offsets). Measured: 33.4 % against 42.7 % (grid) and 47.8 % (axisymmetric).
     The round fit's least-squares point did better here (27 %) but rode the fixed offsets of a
     static press through the whole chain (+26-43 %, test_pipeline.py): see
     test_round_contact.py::test_posterior_is_steadier_than_the_least_squares_point_under_fixed_offsets."""
@@ -171,8 +172,8 @@ def test_default_is_robust_to_the_drivers_baseline_offsets(tmp_path_factory, cas
     grid = np.median([r[3] for r in _errors(grid_recon, offset_cases)])
     axi = _recon(tmp_path_factory, refine="axisymmetric")
     theirs = np.median([r[3] for r in _errors(axi, offset_cases)])
-    assert ours <= 42.0
-    assert ours < grid
+    assert ours <= 38.0
+    assert ours < 0.9 * grid
     assert ours < theirs
 
 

@@ -189,8 +189,8 @@ def test_round_refinement_in_the_reconstructor(tmp_path):
     res = r.solve_deflection(fm.compression(HertzSphere(6e-3), 2.0, centre))
     assert res.refined and res.in_contact
     # Between two taxels size, centre and force trade off along a valley; the default reports
-    # the posterior mean over it (noise = 6 µm), which on these noise-free data sits 0.49 mm
-    # from the centre (the least-squares point: 0.2 mm, 1.81 N), at 2.02 N.
+    # the posterior mean over it (σ ≈ 4.3 µm), which on these noise-free data sits 0.46 mm
+    # from the centre (the least-squares point: 0.2 mm, 1.81 N), at 1.99 N.
     assert res.total_force == pytest.approx(2.0, rel=0.12)
     assert np.hypot(*(np.asarray(res.cop) - centre)) < 0.6e-3
     assert np.all(res.traction >= 0) and res.traction.sum() > 0
