@@ -178,9 +178,9 @@ def fit_round_contact(
     (their residual counts; a contact's far field there is below 1 µm/N). The force is the
     non-negative least-squares scale. None if no profile fits with F > 0.
 
-    With ``sigma`` [m] (the per-taxel measurement error: noise, quantisation and baseline
-    offsets) the returned contact is the posterior mean around that least-squares fit
-    (:func:`posterior_contact`), not the fit itself; ``residual`` stays the fit's.
+    With ``sigma`` [m] (the per-taxel measurement error: quantisation and baseline offsets)
+    the coarse best is followed by :func:`posterior_contact` instead of the polish: the
+    returned contact is the posterior mean around it, not a least-squares point.
     """
     xy = np.asarray(taxel_xy, dtype=np.float64)
     d = np.asarray(delta, dtype=np.float64)
@@ -201,6 +201,16 @@ def fit_round_contact(
     fam = int(pi) // n_a
     la = np.log(tables.radii)
     t_best, c_best = float(la[int(pi) % n_a]), _lattice(c0, search, 5e-4)[li]
+    if sigma is not None:
+        # The posterior's own 0.25 mm lattice around the coarse best replaces the polish.
+        coarse = RoundFit(
+            float(force[pi, li]),
+            (float(c_best[0]), float(c_best[1])),
+            fam,
+            float(tables.radii[int(pi) % n_a]),
+            math.sqrt(max(float(cost[pi, li]), 0.0) + rest),
+        )
+        return posterior_contact(tables, xy, d, coarse, sigma)
     # Into the basin: finer radii and a 0.125 mm lattice around the coarse best.
     ts = np.clip(t_best + np.linspace(-2, 2, 17) * float(np.mean(np.diff(la))), la[0], la[-1])
     k = np.clip(np.searchsorted(la, ts) - 1, 0, n_a - 2)
@@ -237,10 +247,7 @@ def fit_round_contact(
     if f <= 0:
         return None
     res = float(np.sum((f * rv - dl) ** 2)) + rest
-    fit = RoundFit(f, (float(v[0]), float(v[1])), fam, float(np.exp(v[2])), math.sqrt(res))
-    if sigma is None:
-        return fit
-    return posterior_contact(tables, xy, d, fit, sigma)
+    return RoundFit(f, (float(v[0]), float(v[1])), fam, float(np.exp(v[2])), math.sqrt(res))
 
 
 def posterior_contact(
@@ -254,7 +261,7 @@ def posterior_contact(
     step: float = 2.5e-4,
     near: float = 0.015,
 ) -> RoundFit:
-    """Posterior mean of one round contact around a least-squares ``fit``.
+    """Posterior mean of one round contact around a first estimate ``fit``.
 
     Why: with one strongly loaded taxel and neighbours that read a few counts, centre, size and
     force trade off along a valley whose residual changes by less than the fixed per-taxel
@@ -266,14 +273,16 @@ def posterior_contact(
     the centre on a ``step`` lattice within ``half`` [m] of the fit's centre, over both
     families and over the contact radius a (the tabulated radii weighted by a, since they are
     log-spaced), F at its conditional optimum (profile likelihood). Returns the posterior means
-    of log F, of c and of log a; the family of largest posterior mass; the fit's residual.
-    Taxels within ``near`` [m] of the fit count.
+    of log F, of c and of log a; the family of largest posterior mass; and as ``residual`` the
+    least residual met on the lattice (or the fit's, if smaller) [m] over all taxels. Taxels
+    within ``near`` [m] of the fit's centre are fitted, the others as reading zero.
     """
     xy = np.asarray(taxel_xy, dtype=np.float64)
     d = np.asarray(delta, dtype=np.float64)
     if not (math.isfinite(sigma) and sigma > 0):
         raise ValueError(f"sigma must be finite and > 0 [m], got {sigma!r}")
     local = np.hypot(*(xy - np.asarray(fit.center)).T) <= near
+    rest = float(d[~local] @ d[~local])
     n_f, n_a, _ = tables.table.shape
     flat = tables.table.reshape(n_f * n_a, -1)
     centres = _lattice(np.asarray(fit.center), half, step)
@@ -299,5 +308,5 @@ def posterior_contact(
         (float(center[0]), float(center[1])),
         int(np.argmax(by_profile.sum(axis=1))),
         math.exp(log_radius),
-        fit.residual,
+        min(fit.residual, math.sqrt(max(float(cost.min()), 0.0) + rest)),
     )

@@ -108,7 +108,7 @@ def test_quantisation_is_realistic(cases):
 def test_centre_of_pressure_median_within_1mm(default_rows):
     # Over the contacts the default detects. Its contact threshold (≈ 1 count) misses readings
     # of one count, which an idle skin's baseline offsets also produce: 25 % of the 0.2 N cases
-    # are seen, 83 % at 1 N (contacts between three taxels), all at 3 N. Measured: 0.20 mm
+    # are seen, 83 % at 1 N (contacts between three taxels), all at 3 N. Measured: 0.26 mm
     # (the grid solution alone: 0.29 mm).
     cop = np.array([r[4] for r in default_rows])
     seen = np.isfinite(cop)
@@ -138,20 +138,20 @@ def _offset_cases(recon, cs):
 
 
 def test_force_at_3N_and_overall_regression_bounds(default_rows):
-    # Measured with the default (round-contact posterior mean): 26.1 % overall (a third of
-    # the cases are 0.2 N, mostly below the contact threshold: 100 %), 9.0 % at 3 N, 12.6 %
+    # Measured with the default (round-contact posterior mean): 26.5 % overall (a third of
+    # the cases are 0.2 N, mostly below the contact threshold: 100 %), 12.0 % at 3 N, 13.4 %
     # at >= 1 N, 5.1 % over a taxel at >= 1 N; bounds guard against regressions.
     err = np.array([r[3] for r in default_rows])
     f3 = np.array([r[3] for r in default_rows if r[2] == 3.0])
     over = [r[3] for r in default_rows if r[1] == "over" and r[2] >= 1.0]
-    assert np.median(f3) <= 14.0
+    assert np.median(f3) <= 16.0
     assert np.median(err) <= 32.0
     assert np.median(over) <= 10.0
 
 
 def test_default_far_better_than_the_grid_solution(default_rows, grid_rows):
     """The round-contact posterior (tactile_contact.round_contact) against the two-pass NNLS
-    field it refines, on the same cases. Measured: 26.1 % against 46.1 % overall, 12.6 %
+    field it refines, on the same cases. Measured: 26.5 % against 46.1 % overall, 13.4 %
     against 32.5 % at >= 1 N."""
     ours = np.median([r[3] for r in default_rows])
     theirs = np.median([r[3] for r in grid_rows])
@@ -162,7 +162,7 @@ def test_default_far_better_than_the_grid_solution(default_rows, grid_rows):
 def test_default_is_robust_to_the_drivers_baseline_offsets(tmp_path_factory, cases, grid_recon):
     """With the driver's fixed baseline offsets the default still beats the grid solution and
     the older axisymmetric refinement on the 2 mm cells (which won on ideally quantised data
-    and lost with offsets). Measured: 33.4 % against 42.7 % (grid) and 47.8 % (axisymmetric).
+    and lost with offsets). Measured: 30.8 % against 42.7 % (grid) and 47.8 % (axisymmetric).
     The round fit's least-squares point did better here (27 %) but rode the fixed offsets of a
     static press through the whole chain (+26-43 %, test_pipeline.py): see
     test_round_contact.py::test_posterior_is_steadier_than_the_least_squares_point_under_fixed_offsets."""
@@ -172,7 +172,7 @@ def test_default_is_robust_to_the_drivers_baseline_offsets(tmp_path_factory, cas
     grid = np.median([r[3] for r in _errors(grid_recon, offset_cases)])
     axi = _recon(tmp_path_factory, refine="axisymmetric")
     theirs = np.median([r[3] for r in _errors(axi, offset_cases)])
-    assert ours <= 38.0
+    assert ours <= 36.0
     assert ours < 0.9 * grid
     assert ours < theirs
 

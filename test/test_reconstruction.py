@@ -235,7 +235,7 @@ def test_positively_homogeneous_in_the_data(default, refined, indentation):
     assert b.contact_area == pytest.approx(a.contact_area)
     # The default's posterior mean weighs the data against a fixed measurement error (the
     # ``fit_sigma``), so it is homogeneous only where the data dominate: twice a clean 1.5 N
-    # press moves its force by 0.9 % (measured), its centre by 13 µm.
+    # press moves its force by 0.9 % (measured), its centre by 10 µm.
     r, _ = default
     a, b = r.solve_deflection(delta), r.solve_deflection(2.0 * delta)
     assert a.refined and b.refined

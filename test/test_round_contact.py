@@ -155,7 +155,7 @@ def test_posterior_is_steadier_than_the_least_squares_point_under_fixed_offsets(
     # Why the Reconstructor reports the posterior: one taxel loaded (≈ 30 counts), neighbours
     # reading a few counts, and each taxel off by a fixed quantisation / baseline error of up
     # to ±1 count (≈ 10 µm). Over independent draws of those errors the least-squares force
-    # spreads more than the posterior mean's (measured: median |error| 5.3 % against 9.8 %;
+    # spreads more than the posterior mean's (measured: median |error| 5.2 % against 9.8 %;
     # mean error −4.4 % against −5.9 %).
     lsb = 10.5e-6
     truth = 2.0 * tables.response(1, np.log(3.0e-3), np.hypot(*SQUARE.T))
@@ -168,7 +168,9 @@ def test_posterior_is_steadier_than_the_least_squares_point_under_fixed_offsets(
         post = fit_round_contact(tables, SQUARE, d, start_xy=(0.0, 0.0), sigma=6e-6)
         ls_err.append(ls.force / 2.0 - 1)
         post_err.append(post.force / 2.0 - 1)
-        assert post.residual == ls.residual
+        # Its residual is the least met on its 0.25 mm lattice (sometimes below the polish's
+        # local optimum), close to the least-squares one.
+        assert 0.8 * ls.residual <= post.residual <= 1.5 * ls.residual
     assert np.median(np.abs(post_err)) < 0.8 * np.median(np.abs(ls_err))
 
 
@@ -189,7 +191,7 @@ def test_round_refinement_in_the_reconstructor(tmp_path):
     res = r.solve_deflection(fm.compression(HertzSphere(6e-3), 2.0, centre))
     assert res.refined and res.in_contact
     # Between two taxels size, centre and force trade off along a valley; the default reports
-    # the posterior mean over it (σ ≈ 4.3 µm), which on these noise-free data sits 0.46 mm
+    # the posterior mean over it (σ ≈ 4.3 µm), which on these noise-free data sits 0.44 mm
     # from the centre (the least-squares point: 0.2 mm, 1.81 N), at 1.99 N.
     assert res.total_force == pytest.approx(2.0, rel=0.12)
     assert np.hypot(*(np.asarray(res.cop) - centre)) < 0.6e-3
