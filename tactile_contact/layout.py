@@ -157,7 +157,7 @@ class SolverSpec:
             radial responses tabulated offline on a 0.1 mm grid (tactile_contact.round_contact),
             report its posterior mean (per-taxel error: one count / √6) and keep it when it
             explains the data about as well as the grid solution; ``none``: keep the two-pass
-            NNLS field (≈ 4× cheaper per contact frame, far worse force);
+            NNLS field (≈ 3× cheaper per contact frame, far worse force);
             ``axisymmetric``: the older fit on the 2 mm traction cells after NNLS (fragile
             with the driver's baseline offsets: docs/reconstruction.md).
     """
