@@ -317,7 +317,8 @@ class Reconstructor:
                 a, float(self.params["tikhonov"]), reg, str(self.params["nnls_method"])
             )
             if warm:
-                self._solvers[key] = solver
+                # Kept across frames: the one-off work (H⁻¹ on the Gram route) pays off.
+                self._solvers[key] = solver.prepare()
         res = solver.solve(delta[ok], warm_start=warm)
         return np.asarray(res.x, dtype=np.float64), bool(res.success), int(res.iterations)
 

@@ -105,6 +105,9 @@ class Variant:
         lam, ell = self.setup(a)
         s = NnlsSolver(a, tikhonov=lam, regulariser=ell, method=self.method, **kw)  # type: ignore[arg-type]
         if self.warm:  # a different previous frame, so the warm start is not the answer
+            # Prepared as a real-time loop keeps it: the Gram route then solves through H⁻¹
+            # (Schur complements); cold solvers factor H_FF instead. Both routes are tested.
+            s.prepare()
             s.solve(np.roll(d, 3) * 0.7 + 0.1 * np.abs(d).max(), warm_start=False)
         return s, s.solve(d, warm_start=self.warm)
 

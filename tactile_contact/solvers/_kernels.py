@@ -239,7 +239,10 @@ class GramRoute:
         ng = f.size - nf
         scale = float(np.abs(self._g).max())
         self._cached = None
-        if self._use_inverse and nf > 0 and ng**3 / 3 + f.size**2 < nf**3 / 3:
+        # Forming P costs about N³ (Cholesky and N right-hand sides): worth it only for a
+        # solver that keeps it (prepared, or warm across frames), not for a one-off solve.
+        build = 0 if self._inverse is not None else f.size**3
+        if self._use_inverse and nf > 0 and ng**3 / 3 + f.size**2 + build < nf**3 / 3:
             got = self._complement(f)
             if got is not None:
                 x, correct = got
