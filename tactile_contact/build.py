@@ -159,6 +159,7 @@ def build_patch(patch: PatchLayout) -> tuple[dict[str, Any], dict[str, NDArray[A
         "rel_threshold": s.area_rel_threshold,
         "min_pressure": s.area_min_pressure,
         "refine": s.refine,
+        "max_contacts": s.max_contacts,
         "round_step": round_step,
     }
     manifest = {

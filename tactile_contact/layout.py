@@ -160,6 +160,10 @@ class SolverSpec:
             NNLS field (≈ 3× cheaper per contact frame, far worse force);
             ``axisymmetric``: the older fit on the 2 mm traction cells after NNLS (fragile
             with the driver's baseline offsets: docs/reconstruction.md).
+        max_contacts: ``refine: round`` fits up to this many separate round contacts (one per
+            taxel that reads most within 8 mm), kept over the single contact only when they
+            explain the readings better than extra parameters fitted to noise would; 1 fits
+            one contact always.
     """
 
     method: str = "nnls_tikhonov"
@@ -175,6 +179,7 @@ class SolverSpec:
     area_rel_threshold: float = 0.1
     area_min_pressure: float = 100.0
     refine: str = "round"
+    max_contacts: int = 3
 
 
 @dataclass(frozen=True)
@@ -485,6 +490,7 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
         ),
         area_min_pressure=c.number(so, "area_min_pressure", sop, 100.0, lo=0.0),
         refine=c.choice(so, "refine", sop, "round", ("round", "axisymmetric", "none")),
+        max_contacts=c.number(so, "max_contacts", sop, 3, lo=1, hi=8, integer=True),
     )
     patch = PatchLayout(str(name), frame, modules, elast, sensor, grid, model, solver)
     _check_patch(c, patch, path)

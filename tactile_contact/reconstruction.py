@@ -108,6 +108,7 @@ class Reconstructor:
             young [Pa], poisson, epsilon_r, taxel_radius [m], area [m²], method, ...).
         forward: (K, N) matrix C [m/Pa] from traction cells to taxel compressions.
         fit_sigma: per-taxel error [m] the round fit's posterior assumes (one count / √6).
+        max_contacts: separate round contacts fitted at most (the layout's ``max_contacts``).
     """
 
     def __init__(self, bundle: Bundle) -> None:
@@ -128,6 +129,7 @@ class Reconstructor:
         self.method: str = str(p["method"])
         self.noise: float = float(p["noise"])
         self.contact_threshold: float = float(p["contact_threshold"])
+        self.max_contacts: int = int(p.get("max_contacts", 3))
         # Per-cell noise of the free solution, for the "violates non-negativity" test.
         self._cell_noise = self.noise * np.linalg.norm(self._inverse.astype(np.float64), axis=1)
         self._solvers: dict[bytes, Any] = {}
@@ -137,7 +139,8 @@ class Reconstructor:
         # few tenths of a count adds little. Not ``noise``: that one also covers model error
         # for the free solution's non-negativity test.
         lsb = value_count_farad(float(p["farad_per_count"]), int(p["shift"]))
-        self.fit_sigma: float = float(self.compression(np.array([lsb]))[0]) / math.sqrt(6.0)
+        self._count_sigma = float(self.compression(np.array([lsb]))[0]) / math.sqrt(6.0)
+        self.fit_sigma: float = self._count_sigma
         if p.get("refine") == "round":
             from tactile_contact.round_contact import RoundTables
 
@@ -260,9 +263,14 @@ class Reconstructor:
         if fit is not None:
             # The fit's own force, centre and disc, not their 2 mm-cell rendering (which
             # loses the part of a contact beyond the skin mask and blurs a small disc).
-            f = fit[1]
+            fits = fit[1]
+            force = sum(f.force for f in fits)
+            cop = sum(f.force * np.asarray(f.center) for f in fits) / force
             s = dataclasses.replace(
-                s, total_force=f.force, cop=f.center, contact_area=math.pi * f.radius**2
+                s,
+                total_force=force,
+                cop=(float(cop[0]), float(cop[1])),
+                contact_area=sum(math.pi * f.radius**2 for f in fits),
             )
         deflection = None
         if want_d:
@@ -409,38 +417,148 @@ class Reconstructor:
         out[local] = best[1] * best[2]
         return out
 
-    def _round_fit(self, q: NDArray, delta: NDArray, ok: NDArray) -> tuple[NDArray, Any] | None:
-        """One round contact fitted near the grid solution's centre of pressure through the
-        bundle's radial responses (tactile_contact.round_contact): (its cell averages on the
-        traction grid, the fit), or None when it explains the data clearly worse than q."""
+    def _round_fit(
+        self, q: NDArray, delta: NDArray, ok: NDArray
+    ) -> tuple[NDArray, list[Any]] | None:
+        """Round contacts fitted through the bundle's radial responses
+        (tactile_contact.round_contact): (their cell averages on the traction grid, the fits),
+        or None when they explain the data clearly worse than the grid solution q.
+
+        One contact near q's centre of pressure. Where taxels farther apart than
+        CONTACT_SEPARATION each read most around them, also one contact per such taxel: kept
+        instead when they explain the readings better by more than the extra parameters
+        fitted to noise would (MULTI_CONTACT_EVIDENCE).
+        """
         from tactile_contact.round_contact import fit_round_contact
 
-        pos = q > 0
-        if pos.any():
-            start = (q[pos] @ self._centers[pos]) / q[pos].sum()
-        else:
-            start = self.taxel_xy[int(np.argmax(np.where(ok, delta, -np.inf)))]
-        fit = fit_round_contact(
-            self._round,
-            self.taxel_xy[ok],
-            delta[ok],
-            start,
-            sigma=self.fit_sigma if self.fit_sigma > 0 else None,
-        )
-        if fit is None:
+        xy, d = self.taxel_xy[ok], delta[ok]
+        sigma = self.fit_sigma if self.fit_sigma > 0 else None
+        tables = self._round
+        start = self._starts(q, xy, d)
+        single = fit_round_contact(tables, xy, d, start, sigma=sigma)
+        fits = [single] if single is not None else []
+        residual = single.residual if single is not None else math.inf
+        seeds = [xy[i] for i in self._contact_seeds(xy, d)]
+        if len(seeds) > 1:
+            # Model choice on least-squares points (their residuals are those of the
+            # predictions subtracted); the posterior then reports each contact.
+            points = self._multi_fit(seeds, xy, d)
+            if len(points) > 1 and _apart(points, CONTACT_SEPARATION):
+                one = fit_round_contact(tables, xy, d, start, polish=False)
+                r_one = min(one.residual if one is not None else math.inf, residual)
+                r_multi = float(np.linalg.norm(d - sum(tables.predict(f, xy) for f in points)))
+                if r_one**2 - r_multi**2 > MULTI_CONTACT_EVIDENCE * self._count_sigma**2:
+                    fits, residual = [], r_multi
+                    for k, f in enumerate(points):
+                        rest = d - self._predicted(points, xy, skip=k)
+                        post = fit_round_contact(tables, xy, rest, f.center, sigma=sigma)
+                        fits.append(post if post is not None else f)
+        if not fits:
             return None
-        r_grid = float(np.linalg.norm(self.forward[ok] @ q - delta[ok]))
-        if fit.residual > FIT_RESIDUAL_FACTOR * r_grid + self.noise * math.sqrt(ok.sum()):
+        r_grid = float(np.linalg.norm(self.forward[ok] @ q - d))
+        if residual > FIT_RESIDUAL_FACTOR * r_grid + self.noise * math.sqrt(ok.sum()):
             return None
         p = self.params
         young, nu = float(p["young"]), float(p["poisson"])
         cell = self.traction_grid.cell_size
-        near = np.hypot(*(self._centers - fit.center).T) <= fit.radius + cell
         out = np.zeros_like(q)
-        out[near] = fit.indenter(young, nu).pressure_on_cells(
-            self._centers[near], 0.5 * cell, fit.force, fit.center, young, nu
-        )
-        return out, fit
+        for fit in fits:
+            near = np.hypot(*(self._centers - fit.center).T) <= fit.radius + cell
+            out[near] += fit.indenter(young, nu).pressure_on_cells(
+                self._centers[near], 0.5 * cell, fit.force, fit.center, young, nu
+            )
+        return out, fits
+
+    def _starts(self, q: NDArray, xy: NDArray, d: NDArray) -> NDArray[np.float64]:
+        """(S, 2) centres [m] to search a single round contact around: the grid solution's
+        centre of pressure, and the centroid of the readings above the contact threshold (an
+        idle taxel's baseline offset reads ±1 count anywhere) when that is farther
+        than half the search from it (the grid solution's second pass keeps the support of
+        its strongest cells only, which for a broad flat contact, read as a ring of taxels
+        around a quiet centre, is one side of the ring)."""
+        pos = q > 0
+        up = d > self.contact_threshold
+        if not pos.any():
+            return xy[[int(np.argmax(d))]]
+        cop = (q[pos] @ self._centers[pos]) / q[pos].sum()
+        if not up.any():
+            return cop[None]
+        centroid = (d[up] @ xy[up]) / d[up].sum()
+        if np.hypot(*(centroid - cop)) <= 1.5e-3:
+            return cop[None]
+        return np.stack((cop, centroid))
+
+    def _predicted(self, fits: list[Any], xy: NDArray, skip: int = -1) -> NDArray[np.float64]:
+        """Compressions [m] that the contacts ``fits`` (but number ``skip``) make at xy."""
+        out = np.zeros(len(xy))
+        for j, f in enumerate(fits):
+            if j != skip:
+                out += self._round.predict(f, xy)
+        return out
+
+    def _multi_fit(self, seeds: list[NDArray], xy: NDArray, d: NDArray) -> list[Any]:
+        """Least-squares round contacts, one per seed, strongest first, each fitted to the
+        readings minus the contacts already fitted; then each once more with all the others
+        removed (the first was fitted with the others' readings still in the data)."""
+        from tactile_contact.round_contact import fit_round_contact
+
+        fits: list[Any] = []
+        for start in seeds:
+            rest = d - self._predicted(fits, xy)
+            fit = fit_round_contact(self._round, xy, rest, start, polish=False)
+            if fit is not None:
+                fits.append(fit)
+        for k in range(len(fits)):
+            rest = d - self._predicted(fits, xy, skip=k)
+            again = fit_round_contact(self._round, xy, rest, fits[k].center, polish=False)
+            if again is not None:
+                fits[k] = again
+        return fits
+
+    def _contact_seeds(self, xy: NDArray, d: NDArray) -> list[int]:
+        """Taxels (indices into xy) where separate contacts may press, strongest first: those
+        reading above the contact threshold that read most within CONTACT_SEPARATION of
+        themselves (ties to the first) and are parted from every stronger one by a dip
+        (:func:`_dip_between`), at most ``max_contacts``."""
+        seeds: list[int] = []
+        for i in np.argsort(-d, kind="stable"):
+            if d[i] <= self.contact_threshold or len(seeds) == self.max_contacts:
+                break
+            if all(
+                np.hypot(*(xy[i] - xy[j])) >= CONTACT_SEPARATION and _dip_between(xy, d, i, j)
+                for j in seeds
+            ):
+                seeds.append(int(i))
+        return seeds
+
+
+#: Taxels closer than this [m] seed one contact between them: the 5.5 mm taxel pitch cannot
+#: tell two contacts that close apart.
+CONTACT_SEPARATION = 8.0e-3
+#: Separate contacts replace the single one only if they lower the squared residual by more
+#: than this many σ² (σ = one count/√6, the reading's rounding error): each adds four
+#: parameters, and noise alone lowers it by about 4σ² for those (χ², 4 degrees of freedom;
+#: 99.9 % below 18.5).
+MULTI_CONTACT_EVIDENCE = 25.0
+
+
+def _dip_between(xy: NDArray, d: NDArray, i: int, j: int) -> bool:
+    """True unless the taxels between taxels i and j (within 4 mm of the middle 60 % of the
+    segment joining them) all read at least half of the weaker of the two: a broad contact
+    (a 12 mm punch reads alike under its whole face) is one contact, not two."""
+    a, b = xy[i], xy[j]
+    u = b - a
+    t = (xy - a) @ u / (u @ u)
+    off = np.abs((xy - a) @ np.array([-u[1], u[0]])) / math.hypot(*u)
+    between = (t > 0.2) & (t < 0.8) & (off <= 4.0e-3)
+    return not between.any() or float(d[between].min()) < 0.5 * min(float(d[i]), float(d[j]))
+
+
+def _apart(fits: list[Any], distance: float) -> bool:
+    """True when every two of the contacts ``fits`` are at least ``distance`` [m] apart."""
+    c = np.array([f.center for f in fits])
+    far = np.hypot(*(c[:, None, :] - c[None, :, :]).transpose(2, 0, 1))
+    return bool(np.all(far[np.triu_indices(len(c), 1)] >= distance))
 
 
 #: Contact radii [m] tried by the axisymmetric refinement.

@@ -25,7 +25,7 @@ import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
 from tactile_contact.elastic import regular_grid_operator
-from tactile_contact.grids import disc_quadrature
+from tactile_contact.grids import disc_quadrature, distance_to_points
 from tactile_contact.indenters import FlatPunch, HertzSphere
 
 #: Families of the profile library, in table order.
@@ -61,6 +61,12 @@ class RoundTables:
         w = (t - la[k]) / (la[k + 1] - la[k])
         lo, hi = _lookup(self.table[family, k : k + 2], self.step, r)
         return (1.0 - w) * lo + w * hi
+
+    def predict(self, fit: RoundFit, taxel_xy: ArrayLike) -> NDArray[np.float64]:
+        """(K,) compression [m] that the contact ``fit`` makes at ``taxel_xy`` (K, 2) [m]."""
+        xy = np.asarray(taxel_xy, dtype=np.float64)
+        r = np.hypot(*(xy - np.asarray(fit.center)).T)
+        return fit.force * self.response(fit.family, math.log(fit.radius), r)
 
 
 def _lookup(table: NDArray, step: float, r: ArrayLike) -> NDArray[np.float64]:
@@ -168,39 +174,41 @@ def fit_round_contact(
     search: float = 3.0e-3,
     near: float = 0.012,
     sigma: float | None = None,
+    polish: bool = True,
 ) -> RoundFit | None:
     """Fit one round contact to compressions ``delta`` [m] at ``taxel_xy`` (K, 2) [m].
 
     Coarse to fine, vectorised: every tabulated profile on a 0.5 mm lattice within ``search``
-    [m] of ``start_xy``; then, in the best family, 17 radii and a 0.125 mm lattice around
-    the best; then trust-region least squares over centre and log-radius. Taxels
+    [m] of ``start_xy`` (one (2,) centre or several (S, 2)); then, in the best family, 17
+    radii and a 0.125 mm lattice around the best; then trust-region least squares over
+    centre and log-radius. Taxels
     farther than ``near`` [m] (plus the search) from the start are fitted as reading zero
     (their residual counts; a contact's far field there is below 1 µm/N). The force is the
     non-negative least-squares scale. None if no profile fits with F > 0.
 
     With ``sigma`` [m] (the per-taxel measurement error: quantisation and baseline offsets)
     the coarse best is followed by :func:`posterior_contact` instead of the polish: the
-    returned contact is the posterior mean around it, not a least-squares point.
+    returned contact is the posterior mean around it, not a least-squares point. Without
+    ``polish`` the least-squares point is the best on the fine lattice (no trust-region step).
     """
     xy = np.asarray(taxel_xy, dtype=np.float64)
     d = np.asarray(delta, dtype=np.float64)
-    c0 = np.asarray(start_xy, dtype=np.float64)
-    local = np.hypot(*(xy - c0).T) <= min(near, tables.reach) + search
+    c0 = np.asarray(start_xy, dtype=np.float64).reshape(-1, 2)
+    local = distance_to_points(xy, c0) <= min(near, tables.reach) + search
     if not local.any():
         return None
     xl, dl = xy[local], d[local]
     rest = float(d[~local] @ d[~local])
     n_f, n_a, _ = tables.table.shape
     flat = tables.table.reshape(n_f * n_a, -1)
-    cost, force = _scores(
-        flat, flat, np.zeros(n_f * n_a), tables.step, _lattice(c0, search, 5e-4), xl, dl
-    )
+    lattice = np.concatenate([_lattice(c, search, 5e-4) for c in c0])
+    cost, force = _scores(flat, flat, np.zeros(n_f * n_a), tables.step, lattice, xl, dl)
     pi, li = np.unravel_index(int(np.argmin(cost)), cost.shape)
     if force[pi, li] <= 0:
         return None
     fam = int(pi) // n_a
     la = np.log(tables.radii)
-    t_best, c_best = float(la[int(pi) % n_a]), _lattice(c0, search, 5e-4)[li]
+    t_best, c_best = float(la[int(pi) % n_a]), lattice[li]
     if sigma is not None:
         # The posterior's own 0.25 mm lattice around the coarse best replaces the polish.
         coarse = RoundFit(
@@ -221,6 +229,12 @@ def fit_round_contact(
     )
     pi, li = np.unravel_index(int(np.argmin(cost)), cost.shape)
     v0 = np.array([*centres[li], ts[pi]])
+    if not polish:
+        f = float(force[pi, li])
+        if f <= 0:
+            return None
+        res = math.sqrt(max(float(cost[pi, li]), 0.0) + rest)
+        return RoundFit(f, (float(v0[0]), float(v0[1])), fam, float(np.exp(v0[2])), res)
 
     def residual(v: NDArray) -> NDArray[np.float64]:
         """Variable projection: the force is eliminated in closed form."""

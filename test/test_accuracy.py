@@ -162,8 +162,10 @@ def test_default_far_better_than_the_grid_solution(default_rows, grid_rows):
 def test_default_is_robust_to_the_drivers_baseline_offsets(tmp_path_factory, cases, grid_recon):
     """With the driver's fixed baseline offsets the default still beats the grid solution and
     the older axisymmetric refinement on the 2 mm cells (which won on ideally quantised data
-    and lost with offsets). Measured: 30.8 % against 42.7 % (grid) and 47.8 % (axisymmetric).
-    The round fit's least-squares point did better here (27 %) but rode the fixed offsets of a
+    and lost with offsets). Measured: 23.3 % against 42.7 % (grid) and 47.8 % (axisymmetric);
+    30.8 % before the fit also searched around the centroid of the strong readings (the grid
+    solution's centre of pressure can sit on one side of a broad contact's ring of readings).
+    The round fit's least-squares point did 27 % then, but rode the fixed offsets of a
     static press through the whole chain (+26-43 %, test_pipeline.py): see
     test_round_contact.py::test_posterior_is_steadier_than_the_least_squares_point_under_fixed_offsets."""
     recon, cs = cases
@@ -172,8 +174,8 @@ def test_default_is_robust_to_the_drivers_baseline_offsets(tmp_path_factory, cas
     grid = np.median([r[3] for r in _errors(grid_recon, offset_cases)])
     axi = _recon(tmp_path_factory, refine="axisymmetric")
     theirs = np.median([r[3] for r in _errors(axi, offset_cases)])
-    assert ours <= 36.0
-    assert ours < 0.9 * grid
+    assert ours <= 28.0
+    assert ours < 0.7 * grid
     assert ours < theirs
 
 
@@ -192,3 +194,75 @@ def test_default_beats_the_papers_pinv_on_force(tmp_path_factory, cases, default
     ours = np.median([r[3] for r in default_rows if r[2] >= 1.0])
     theirs = np.median([r[3] for r in pinv if r[2] >= 1.0])
     assert ours < 0.6 * theirs
+
+
+@pytest.fixture(scope="module")
+def two_contact_cases(cases):
+    """Two indenters pressed at once, 12-25 mm apart, each over a taxel or between two (the
+    paper's indenters in turn), 0.15 count noise, 8-bit quantisation. Truth: the same fine
+    forward simulation, the two contacts' capacitance changes added (small beside the
+    nonlinearity of one contact at these distances)."""
+    recon, _ = cases
+    p = recon.params
+    xy = recon.taxel_xy
+    fm = ForwardModel(
+        xy,
+        p["thickness"],
+        p["young"],
+        p["poisson"],
+        fine_cell=5e-4,
+        taxel_radius=p["taxel_radius"],
+    )
+    lsb = value_count_farad(p["farad_per_count"], p["shift"])
+    near = np.hypot(*(xy[:, None] - xy[None]).T) < 6e-3
+    mids = [(xy[i] + xy[j]) / 2 for i, j in zip(*np.nonzero(np.tril(near, -1)), strict=True)]
+    spots = [*xy, *mids]
+    rng = np.random.default_rng(11)
+    indenters = list(INDENTERS.values())
+    loads = ((1.0, 1.0), (2.0, 1.0), (1.5, 0.7))
+    out = []
+    while len(out) < 24:
+        a, b = rng.choice(len(spots), 2, replace=False)
+        c1, c2 = spots[a], spots[b]
+        if not 12e-3 <= np.hypot(*(c1 - c2)) <= 25e-3:
+            continue
+        ind = indenters[len(out) % len(indenters)]
+        f1, f2 = loads[len(out) % len(loads)]
+        dc = fm.delta_c(ind, f1, c1, p["epsilon_r"]) + fm.delta_c(ind, f2, c2, p["epsilon_r"])
+        dcq = np.rint((dc + rng.normal(0, NOISE_COUNTS * lsb, dc.shape)) / lsb) * lsb
+        out.append((f1 + f2, (f1 * c1 + f2 * c2) / (f1 + f2), dcq))
+    return out
+
+
+def _two_contact_errors(recon, cs):
+    force, cop = [], []
+    for f, c, dcq in cs:
+        res = recon.solve(dcq)
+        force.append(abs(res.total_force / f - 1) * 100)
+        cop.append(np.hypot(*(np.asarray(res.cop) - c)) * 1e3)
+    return np.median(force), np.median(cop)
+
+
+def test_two_separate_contacts(tmp_path_factory, cases, two_contact_cases, grid_recon):
+    """Two objects at once: the default fits one round contact per pressed region. Against
+    one round contact for the whole frame (``max_contacts: 1``) and the grid solution, on the
+    same frames. The summary's CoP is the force-weighted centre of both."""
+    recon, _ = cases
+    force, cop = _two_contact_errors(recon, two_contact_cases)
+    one = _recon(tmp_path_factory, max_contacts=1)
+    force_one, cop_one = _two_contact_errors(one, two_contact_cases)
+    force_grid, cop_grid = _two_contact_errors(grid_recon, two_contact_cases)
+    # Measured: 12.8 % and 0.98 mm; one round contact 32.7 % and 5.3 mm (it fits one of the
+    # two, or one between them); the grid solution 31.1 % and 2.9 mm (its second NNLS pass
+    # keeps the support of the stronger contact only).
+    assert force <= 16.0 and cop <= 1.5
+    assert force < 0.6 * force_one and cop < 0.5 * cop_one
+    assert force < 0.6 * force_grid and cop < 0.5 * cop_grid
+
+
+def test_single_contacts_stay_single(tmp_path_factory, cases, default_rows):
+    """Separate contacts are fitted only when the readings call for them: on the single
+    contacts of this test the default gives what one round contact gives."""
+    _, cs = cases
+    one = _errors(_recon(tmp_path_factory, max_contacts=1), cs)
+    assert one == default_rows
