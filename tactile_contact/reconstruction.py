@@ -471,13 +471,13 @@ class Reconstructor:
 
     def _starts(self, q: NDArray, xy: NDArray, d: NDArray) -> NDArray[np.float64]:
         """(S, 2) centres [m] to search a single round contact around: the grid solution's
-        centre of pressure, and the centroid of the readings above the contact threshold (an
-        idle taxel's baseline offset reads ±1 count anywhere) when that is farther
-        than half the search from it (the grid solution's second pass keeps the support of
-        its strongest cells only, which for a broad flat contact, read as a ring of taxels
-        around a quiet centre, is one side of the ring)."""
+        centre of pressure, and, when it is more than half the search away, the centroid of
+        the readings above the contact threshold within 12 mm of the strongest one (farther
+        out, idle taxels read a count or two of baseline offset). The grid solution's second
+        pass keeps the support of its strongest cells only; for a broad flat contact, read as
+        a ring of taxels around a quiet centre, that is one side of the ring."""
         pos = q > 0
-        up = d > self.contact_threshold
+        up = (d > self.contact_threshold) & (np.hypot(*(xy - xy[int(np.argmax(d))]).T) <= 0.012)
         if not pos.any():
             return xy[[int(np.argmax(d))]]
         cop = (q[pos] @ self._centers[pos]) / q[pos].sum()
@@ -517,12 +517,14 @@ class Reconstructor:
 
     def _contact_seeds(self, xy: NDArray, d: NDArray) -> list[int]:
         """Taxels (indices into xy) where separate contacts may press, strongest first: those
-        reading above the contact threshold that read most within CONTACT_SEPARATION of
-        themselves (ties to the first) and are parted from every stronger one by a dip
-        (:func:`_dip_between`), at most ``max_contacts``."""
+        reading above CONTACT_SEED_LEVEL contact thresholds that read most within
+        CONTACT_SEPARATION of themselves (ties to the first) and are parted from every
+        stronger one by a dip (:func:`_dip_between`), at most ``max_contacts``."""
         seeds: list[int] = []
         for i in np.argsort(-d, kind="stable"):
-            if d[i] <= self.contact_threshold or len(seeds) == self.max_contacts:
+            if d[i] <= CONTACT_SEED_LEVEL * self.contact_threshold:
+                break
+            if len(seeds) == self.max_contacts:
                 break
             if all(
                 np.hypot(*(xy[i] - xy[j])) >= CONTACT_SEPARATION and _dip_between(xy, d, i, j)
@@ -535,6 +537,10 @@ class Reconstructor:
 #: Taxels closer than this [m] seed one contact between them: the 5.5 mm taxel pitch cannot
 #: tell two contacts that close apart.
 CONTACT_SEPARATION = 8.0e-3
+#: A taxel seeds a separate contact only above this many contact thresholds (≈ 2.6 counts):
+#: through the driver an idle taxel reads up to about 1.7 counts (its baseline offset, the
+#: converter noise), and seeding there split one pressed sphere into three contacts.
+CONTACT_SEED_LEVEL = 2.5
 #: Separate contacts replace the single one only if they lower the squared residual by more
 #: than this many σ² (σ = one count/√6, the reading's rounding error): each adds four
 #: parameters, and noise alone lowers it by about 4σ² for those (χ², 4 degrees of freedom;

@@ -24,6 +24,7 @@ from tactile_contact.round_contact import (
     posterior_contact,
     round_tables,
 )
+from tactile_contact.sensor import value_count_farad
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = yaml.safe_load((ROOT / "config" / "hexagon_patch.yaml").read_text())
@@ -204,6 +205,15 @@ def test_round_refinement_in_the_reconstructor(tmp_path):
     assert res.refined
     assert res.total_force == pytest.approx(2.0, rel=0.08)
     assert np.hypot(*(np.asarray(res.cop) - (r.taxel_xy[20] + r.taxel_xy[51]) / 2)) < 0.3e-3
-    # Limited to one, a round contact cannot explain them: the grid solution stays.
+    # Idle taxels far away reading 1.8 counts (the driver's baseline offsets) seed nothing:
+    # the result is the single contact's.
+    one = fm.compression(HertzSphere(6e-3), 2.0, centre)
+    idle = one.copy()
+    lsb = value_count_farad(r.params["farad_per_count"], r.params["shift"])
+    far = np.flatnonzero(np.hypot(*(r.taxel_xy - centre).T) > 0.015)[::20]
+    idle[far] += 1.8 * r.compression(np.array([lsb]))[0]
+    with_idle = r.solve_deflection(idle)
+    # Limited to one, a round contact cannot explain the two: the grid solution stays.
     r.max_contacts = 1
     assert not r.solve_deflection(two).refined
+    assert r.solve_deflection(idle).total_force == with_idle.total_force
