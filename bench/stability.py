@@ -221,16 +221,26 @@ def units() -> dict[str, Any]:
     return out
 
 
+LINEAR = {"refine": "none"}
+
+
 def pipelines(tmp: Path) -> dict[str, Pipeline]:
     cfgs = {
-        "pinv": Config("pinv", "pinv", "solver", {"solver": {"method": "pinv"}}),
-        "tikhonov": Config("tikhonov", "Tikhonov", "solver", {"solver": {"method": "tikhonov"}}),
+        # The linear operators alone (the default would add the round fit to them).
+        "pinv": Config("pinv", "pinv", "solver", {"solver": {"method": "pinv", **LINEAR}}),
+        "tikhonov": Config(
+            "tikhonov", "Tikhonov", "solver", {"solver": {"method": "tikhonov", **LINEAR}}
+        ),
         "nnls (1 pass)": Config("nnls", "NNLS", "solver", {"solver": {"tikhonov": 0.0}}, passes=1),
         "nnls+tikhonov (1 pass)": Config("nnls+tikh", "NNLS+Tikhonov", "solver", passes=1),
         "default (2-pass)": Config("default", "default", "default"),
         "default, float64": Config("f64", "default f64", "dtype", dtype="float64"),
         "pinv, float64": Config(
-            "pinv f64", "pinv f64", "dtype", {"solver": {"method": "pinv"}}, dtype="float64"
+            "pinv f64",
+            "pinv f64",
+            "dtype",
+            {"solver": {"method": "pinv", **LINEAR}},
+            dtype="float64",
         ),
     }
     return {k: Pipeline(c, tmp / k.replace(" ", "_")) for k, c in cfgs.items()}
