@@ -49,6 +49,19 @@ def _recon(tmp_path_factory, **solver) -> Reconstructor:
     return Reconstructor.from_bundle(save_bundle(tmp_path_factory.mktemp(name) / "p", m, a))
 
 
+def _truth(recon: Reconstructor, points, fine_cell: float) -> ForwardModel:
+    """The independent fine forward simulation at ``points`` with the bundle's parameters."""
+    p = recon.params
+    return ForwardModel(
+        points,
+        p["thickness"],
+        p["young"],
+        p["poisson"],
+        fine_cell=fine_cell,
+        taxel_radius=p["taxel_radius"],
+    )
+
+
 @pytest.fixture(scope="module")
 def cases(tmp_path_factory):
     recon = _recon(tmp_path_factory)
@@ -59,14 +72,7 @@ def cases(tmp_path_factory):
     # Taxels beyond 20 mm of every indenter read < 1 µm (0.1 count) at 3 N: simulate only the
     # near ones (time), the others read exactly no change.
     near = np.hypot(*(xy - m.mean(axis=0)).T) < 0.02 + 0.008
-    fm = ForwardModel(
-        xy[near],
-        p["thickness"],
-        p["young"],
-        p["poisson"],
-        fine_cell=2.5e-4,
-        taxel_radius=p["taxel_radius"],
-    )
+    fm = _truth(recon, xy[near], fine_cell=2.5e-4)
     lsb = value_count_farad(p["farad_per_count"], p["shift"])
     rng = np.random.default_rng(7)
     out = []
@@ -205,14 +211,7 @@ def two_contact_cases(cases):
     recon, _ = cases
     p = recon.params
     xy = recon.taxel_xy
-    fm = ForwardModel(
-        xy,
-        p["thickness"],
-        p["young"],
-        p["poisson"],
-        fine_cell=5e-4,
-        taxel_radius=p["taxel_radius"],
-    )
+    fm = _truth(recon, xy, fine_cell=5e-4)
     lsb = value_count_farad(p["farad_per_count"], p["shift"])
     near = np.hypot(*(xy[:, None] - xy[None]).T) < 6e-3
     mids = [(xy[i] + xy[j]) / 2 for i, j in zip(*np.nonzero(np.tril(near, -1)), strict=True)]
