@@ -18,9 +18,11 @@
    With ``refine: axisymmetric`` (not the default) a single round contact (Hertz-like or
    punch-like profile, radius and centre searched near the NNLS solution) replaces the NNLS
    field when it explains the data about as well (``ContactResult.refined``).
-   With ``refine: round`` (not the default) the same is done on every contact frame through
-   radial responses tabulated offline on a 0.1 mm grid (:mod:`tactile_contact.round_contact`),
-   and the summary takes the fit's own force, centre and disc area.
+   With ``refine: round`` (the default) round contacts are fitted on every contact frame
+   through radial responses tabulated offline on a 0.1 mm grid: one, or up to
+   ``max_contacts`` separate ones (:mod:`tactile_contact.contacts`,
+   :mod:`tactile_contact.round_contact`); each is reported by its posterior mean, and the
+   summary takes the fits' own force, centre and disc area.
 5. Summary (total force, CoP, area, peak) and, when wanted, the deflection grid = G·q.
 
 Methods ``tikhonov``, ``tsvd`` and ``pinv`` (the paper's) use the free product only.
@@ -67,7 +69,8 @@ class ContactResult:
         residual_norm: ‖C·q − δ‖ [m] over the valid taxels.
         solve_time: wall time of the solve [s].
         taxels_active: valid taxels with |δ| above the contact threshold.
-        refined: the axisymmetric single-contact refinement replaced the NNLS field.
+        refined: a refinement (round contacts, or the axisymmetric fit) replaced the grid
+            solution.
     """
 
     traction: NDArray[np.float64] | None
@@ -420,41 +423,25 @@ class Reconstructor:
     def _round_fit(
         self, q: NDArray, delta: NDArray, ok: NDArray
     ) -> tuple[NDArray, list[Any]] | None:
-        """Round contacts fitted through the bundle's radial responses
-        (tactile_contact.round_contact): (their cell averages on the traction grid, the fits),
-        or None when they explain the data clearly worse than the grid solution q.
-
-        One contact near q's centre of pressure. Where taxels farther apart than
-        CONTACT_SEPARATION each read most around them, also one contact per such taxel: kept
-        instead when they explain the readings better by more than the extra parameters
-        fitted to noise would (MULTI_CONTACT_EVIDENCE).
-        """
-        from tactile_contact.round_contact import fit_round_contact
+        """Round contacts (:class:`tactile_contact.contacts.ContactFitter`): (their cell
+        averages on the traction grid, the fits), or None when they explain the data clearly
+        worse than the grid solution q."""
+        from tactile_contact.contacts import ContactFitter
 
         xy, d = self.taxel_xy[ok], delta[ok]
-        sigma = self.fit_sigma if self.fit_sigma > 0 else None
-        tables = self._round
-        start = self._starts(q, xy, d)
-        single = fit_round_contact(tables, xy, d, start, sigma=sigma)
-        fits = [single] if single is not None else []
-        residual = single.residual if single is not None else math.inf
-        seeds = [xy[i] for i in self._contact_seeds(xy, d)]
-        if len(seeds) > 1:
-            # Model choice on least-squares points (their residuals are those of the
-            # predictions subtracted); the posterior then reports each contact.
-            points = self._multi_fit(seeds, xy, d)
-            if len(points) > 1 and _apart(points, CONTACT_SEPARATION):
-                one = fit_round_contact(tables, xy, d, start, polish=False)
-                r_one = min(one.residual if one is not None else math.inf, residual)
-                r_multi = float(np.linalg.norm(d - sum(tables.predict(f, xy) for f in points)))
-                if r_one**2 - r_multi**2 > MULTI_CONTACT_EVIDENCE * self._count_sigma**2:
-                    fits, residual = [], r_multi
-                    for k, f in enumerate(points):
-                        rest = d - self._predicted(points, xy, skip=k)
-                        post = fit_round_contact(tables, xy, rest, f.center, sigma=sigma)
-                        fits.append(post if post is not None else f)
-        if not fits:
+        pos = q > 0
+        cop = (q[pos] @ self._centers[pos]) / q[pos].sum() if pos.any() else None
+        fitter = ContactFitter(
+            self._round,
+            self._count_sigma,
+            self.contact_threshold,
+            sigma=self.fit_sigma if self.fit_sigma > 0 else None,
+            max_contacts=self.max_contacts,
+        )
+        found = fitter.fit(xy, d, cop)
+        if found is None:
             return None
+        fits, residual = found
         r_grid = float(np.linalg.norm(self.forward[ok] @ q - d))
         if residual > FIT_RESIDUAL_FACTOR * r_grid + self.noise * math.sqrt(ok.sum()):
             return None
@@ -469,108 +456,12 @@ class Reconstructor:
             )
         return out, fits
 
-    def _starts(self, q: NDArray, xy: NDArray, d: NDArray) -> NDArray[np.float64]:
-        """(S, 2) centres [m] to search a single round contact around: the grid solution's
-        centre of pressure, and, when it is more than half the search away, the centroid of
-        the readings above the contact threshold within 12 mm of the strongest one (farther
-        out, idle taxels read a count or two of baseline offset). The grid solution's second
-        pass keeps the support of its strongest cells only; for a broad flat contact, read as
-        a ring of taxels around a quiet centre, that is one side of the ring."""
-        pos = q > 0
-        up = (d > self.contact_threshold) & (np.hypot(*(xy - xy[int(np.argmax(d))]).T) <= 0.012)
-        if not pos.any():
-            return xy[[int(np.argmax(d))]]
-        cop = (q[pos] @ self._centers[pos]) / q[pos].sum()
-        if not up.any():
-            return cop[None]
-        centroid = (d[up] @ xy[up]) / d[up].sum()
-        if np.hypot(*(centroid - cop)) <= 1.5e-3:
-            return cop[None]
-        return np.stack((cop, centroid))
-
-    def _predicted(self, fits: list[Any], xy: NDArray, skip: int = -1) -> NDArray[np.float64]:
-        """Compressions [m] that the contacts ``fits`` (but number ``skip``) make at xy."""
-        out = np.zeros(len(xy))
-        for j, f in enumerate(fits):
-            if j != skip:
-                out += self._round.predict(f, xy)
-        return out
-
-    def _multi_fit(self, seeds: list[NDArray], xy: NDArray, d: NDArray) -> list[Any]:
-        """Least-squares round contacts, one per seed, strongest first, each fitted to the
-        readings minus the contacts already fitted; then each once more with all the others
-        removed (the first was fitted with the others' readings still in the data)."""
-        from tactile_contact.round_contact import fit_round_contact
-
-        fits: list[Any] = []
-        for start in seeds:
-            rest = d - self._predicted(fits, xy)
-            fit = fit_round_contact(self._round, xy, rest, start, polish=False)
-            if fit is not None:
-                fits.append(fit)
-        for k in range(len(fits)):
-            rest = d - self._predicted(fits, xy, skip=k)
-            again = fit_round_contact(self._round, xy, rest, fits[k].center, polish=False)
-            if again is not None:
-                fits[k] = again
-        return fits
-
-    def _contact_seeds(self, xy: NDArray, d: NDArray) -> list[int]:
-        """Taxels (indices into xy) where separate contacts may press, strongest first: those
-        reading above CONTACT_SEED_LEVEL contact thresholds that read most within
-        CONTACT_SEPARATION of themselves (ties to the first) and are parted from every
-        stronger one by a dip (:func:`_dip_between`), at most ``max_contacts``."""
-        seeds: list[int] = []
-        for i in np.argsort(-d, kind="stable"):
-            if d[i] <= CONTACT_SEED_LEVEL * self.contact_threshold:
-                break
-            if len(seeds) == self.max_contacts:
-                break
-            if all(
-                np.hypot(*(xy[i] - xy[j])) >= CONTACT_SEPARATION and _dip_between(xy, d, i, j)
-                for j in seeds
-            ):
-                seeds.append(int(i))
-        return seeds
-
-
-#: Taxels closer than this [m] seed one contact between them: the 5.5 mm taxel pitch cannot
-#: tell two contacts that close apart.
-CONTACT_SEPARATION = 8.0e-3
-#: A taxel seeds a separate contact only above this many contact thresholds (≈ 2.6 counts):
-#: through the driver an idle taxel reads up to about 1.7 counts (its baseline offset, the
-#: converter noise), and seeding there split one pressed sphere into three contacts.
-CONTACT_SEED_LEVEL = 2.5
-#: Separate contacts replace the single one only if they lower the squared residual by more
-#: than this many σ² (σ = one count/√6, the reading's rounding error): each adds four
-#: parameters, and noise alone lowers it by about 4σ² for those (χ², 4 degrees of freedom;
-#: 99.9 % below 18.5).
-MULTI_CONTACT_EVIDENCE = 25.0
-
-
-def _dip_between(xy: NDArray, d: NDArray, i: int, j: int) -> bool:
-    """True unless the taxels between taxels i and j (within 4 mm of the middle 60 % of the
-    segment joining them) all read at least half of the weaker of the two: a broad contact
-    (a 12 mm punch reads alike under its whole face) is one contact, not two."""
-    a, b = xy[i], xy[j]
-    u = b - a
-    t = (xy - a) @ u / (u @ u)
-    off = np.abs((xy - a) @ np.array([-u[1], u[0]])) / math.hypot(*u)
-    between = (t > 0.2) & (t < 0.8) & (off <= 4.0e-3)
-    return not between.any() or float(d[between].min()) < 0.5 * min(float(d[i]), float(d[j]))
-
-
-def _apart(fits: list[Any], distance: float) -> bool:
-    """True when every two of the contacts ``fits`` are at least ``distance`` [m] apart."""
-    c = np.array([f.center for f in fits])
-    far = np.hypot(*(c[:, None, :] - c[None, :, :]).transpose(2, 0, 1))
-    return bool(np.all(far[np.triu_indices(len(c), 1)] >= distance))
-
 
 #: Contact radii [m] tried by the axisymmetric refinement.
 FIT_RADII = (0.75e-3, 1.0e-3, 1.5e-3, 2.0e-3, 3.0e-3, 4.0e-3, 6.0e-3)
-#: The refinement is kept only if its residual is at most this factor times the NNLS residual
-#: plus the noise (two separate contacts, or a strongly non-round one, fail this).
+#: A refinement is kept only if its residual is at most this factor times the grid solution's
+#: plus the noise (for the axisymmetric one, two separate contacts or a strongly non-round one
+#: fail this).
 FIT_RESIDUAL_FACTOR = 1.5
 
 
