@@ -17,8 +17,9 @@ __version__ = "0.1.0"
 
 if TYPE_CHECKING:
     from tactile_contact.reconstruction import ContactResult, Reconstructor
+    from tactile_contact.summary import Contact
 
-__all__ = ["ContactResult", "Reconstructor", "__version__"]
+__all__ = ["Contact", "ContactResult", "Reconstructor", "__version__"]
 
 
 def __getattr__(name: str) -> Any:
@@ -27,4 +28,8 @@ def __getattr__(name: str) -> Any:
         from tactile_contact import reconstruction
 
         return getattr(reconstruction, name)
+    if name == "Contact":
+        from tactile_contact.summary import Contact
+
+        return Contact
     raise AttributeError(f"module 'tactile_contact' has no attribute {name!r}")

@@ -45,7 +45,7 @@ from numpy.typing import ArrayLike, NDArray
 from tactile_contact.bundle import Bundle, load_bundle
 from tactile_contact.grids import Grid, distance_to_points
 from tactile_contact.sensor import delta_c_in_range, delta_c_to_compression, value_count_farad
-from tactile_contact.summary import summarize
+from tactile_contact.summary import Contact, summarize
 
 
 @dataclass(frozen=True)
@@ -71,6 +71,9 @@ class ContactResult:
         taxels_active: valid taxels with |δ| above the contact threshold.
         refined: a refinement (round contacts, or the axisymmetric fit) replaced the grid
             solution.
+        contacts: the contacts the summary adds up (:class:`tactile_contact.summary.Contact`):
+            one per fitted round contact, else the field as one contact; empty without
+            contact.
     """
 
     traction: NDArray[np.float64] | None
@@ -87,6 +90,7 @@ class ContactResult:
     solve_time: float
     taxels_active: int
     refined: bool = False
+    contacts: tuple[Contact, ...] = ()
 
 
 def _grid(bundle: Bundle, key: str) -> Grid:
@@ -263,17 +267,22 @@ class Reconstructor:
             float(self.params["rel_threshold"]),
             float(self.params["min_pressure"]),
         )
+        contacts = (Contact.of_field(s),) if s.in_contact else ()
         if fit is not None:
             # The fit's own force, centre and disc, not their 2 mm-cell rendering (which
             # loses the part of a contact beyond the skin mask and blurs a small disc).
-            fits = fit[1]
-            force = sum(f.force for f in fits)
-            cop = sum(f.force * np.asarray(f.center) for f in fits) / force
+            from tactile_contact.round_contact import FAMILIES
+
+            contacts = tuple(
+                Contact(f.force, f.center, f.radius, FAMILIES[f.family]) for f in fit[1]
+            )
+            force = sum(c.force for c in contacts)
+            cop = sum(c.force * np.asarray(c.center) for c in contacts) / force
             s = dataclasses.replace(
                 s,
                 total_force=force,
                 cop=(float(cop[0]), float(cop[1])),
-                contact_area=sum(math.pi * f.radius**2 for f in fits),
+                contact_area=sum(math.pi * c.radius**2 for c in contacts),
             )
         deflection = None
         if want_d:
@@ -297,6 +306,7 @@ class Reconstructor:
             dt,
             active,
             refined,
+            contacts,
         )
 
     def _masked_free(self, ok: NDArray) -> NDArray[np.float64]:

@@ -38,6 +38,35 @@ class ContactSummary:
     in_contact: bool
 
 
+@dataclass(frozen=True)
+class Contact:
+    """One contact of a frame (SI units, patch frame).
+
+    Attributes:
+        force: normal force [N].
+        center: centre (x, y) [m].
+        radius: radius of the contact disc [m].
+        profile: ``"punch"`` or ``"hertz"`` for a round contact fitted to the readings
+            (:mod:`tactile_contact.round_contact`), ``"field"`` for a traction field's summary
+            (its force and centre of pressure, the radius of a disc of its contact area).
+    """
+
+    force: float
+    center: tuple[float, float]
+    radius: float
+    profile: str
+
+    @classmethod
+    def of_field(cls, summary: ContactSummary) -> Contact:
+        """The field summarised by ``summary`` as one contact."""
+        return cls(
+            summary.total_force,
+            summary.cop,
+            math.sqrt(summary.contact_area / math.pi),
+            "field",
+        )
+
+
 def summarize(
     pressure: ArrayLike,
     centers: ArrayLike,

@@ -89,6 +89,7 @@ def test_replay_reproduces_the_recorded_summaries(ros_context: object, tmp_path:
     for stamp in common:
         a, b = got[stamp], recorded[stamp]
         assert a.in_contact == b.in_contact and a.solver == b.solver, stamp
+        assert [k.profile for k in a.contacts] == [k.profile for k in b.contacts], stamp
         # Same matrices, same inputs: equal up to float32 rounding of the online product.
         scale = max(abs(b.total_force), 1e-3)
         worst["force"] = max(worst["force"], abs(a.total_force - b.total_force) / scale)

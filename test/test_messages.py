@@ -12,7 +12,7 @@ pytestmark = pytest.mark.ros
 def _examples() -> list[object]:
     from geometry_msgs.msg import Point
 
-    from tactile_contact.msg import ContactState, GridGeometry, TaxelArray
+    from tactile_contact.msg import Contact, ContactState, GridGeometry, TaxelArray
 
     taxels = TaxelArray(
         patch="hexagon",
@@ -38,6 +38,10 @@ def _examples() -> list[object]:
         latency=1e-3,
         taxels_used=72,
         taxels_active=9,
+        contacts=[
+            Contact(force=0.75, center=Point(x=0.0, y=-0.02, z=0.0), radius=2e-3, profile="hertz"),
+            Contact(force=0.5, center=Point(x=0.025, y=-0.02, z=0.0), radius=1e-3, profile="punch"),
+        ],
     )
     grid = GridGeometry(
         patch="hexagon",
@@ -94,6 +98,8 @@ def test_publish_and_receive_each_message(ros_context: object, index: int) -> No
         a, b = getattr(sent, field), getattr(got, field)
         if isinstance(a, float):
             assert math.isclose(a, b, rel_tol=0, abs_tol=0), field
+        elif isinstance(a, list) and a and not isinstance(a[0], int | float):
+            assert a == list(b), field  # nested messages compare field by field
         elif hasattr(a, "tolist") or isinstance(a, list):
             assert list(a) == pytest.approx(list(b), rel=1e-7), field  # float32 arrays
         else:

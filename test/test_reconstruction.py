@@ -151,6 +151,23 @@ def test_noise_free_indentation(default, indentation):
     )
 
 
+def test_contacts_add_up_to_the_summary(default, point_pinv, indentation):
+    # The default fits one round contact here; its force and centre are the summary's.
+    delta, c = indentation
+    for r, profiles in ((default[0], ("punch", "hertz")), (point_pinv[0], ("field",))):
+        res = r.solve_deflection(delta)
+        assert len(res.contacts) == 1
+        (k,) = res.contacts
+        assert k.profile in profiles
+        assert k.force == pytest.approx(res.total_force, rel=1e-12)
+        assert k.center == pytest.approx(res.cop, abs=1e-12)
+        assert np.pi * k.radius**2 == pytest.approx(res.contact_area, rel=1e-9)
+    # The sphere's Hertz contact radius at 1.5 N is 1.9 mm: the fit's disc is near it.
+    k = default[0].solve_deflection(delta).contacts[0]
+    assert 1.0e-3 < k.radius < 3.5e-3 and np.hypot(*(np.asarray(k.center) - c)) < 0.5e-3
+    assert default[0].solve_deflection(np.zeros(72)).contacts == ()
+
+
 def test_delta_c_and_delta_entry_points_agree(default, indentation):
     r, _ = default
     delta, _ = indentation

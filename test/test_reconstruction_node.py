@@ -114,6 +114,10 @@ def test_contact_summary_matches_the_indenter(ros_context: object, bundles: Path
     assert state.total_force == pytest.approx(1.0, rel=0.15)
     cop = np.array([state.center_of_pressure.x, state.center_of_pressure.y])
     assert np.linalg.norm(cop - load_center) < 1e-3
+    (contact,) = state.contacts
+    assert contact.force == pytest.approx(state.total_force, rel=1e-12)
+    assert (contact.center.x, contact.center.y) == pytest.approx(tuple(cop), abs=1e-12)
+    assert contact.profile in ("punch", "hertz") and contact.radius > 0
     assert spin_until(rig.executor, lambda: bool(images))
     grid = rig.node.pipelines["hexagon"].recon.traction_grid
     img = images[-1]
@@ -133,7 +137,7 @@ def test_idle_patch_and_unsubscribed_outputs_are_skipped(
     for i in range(5):
         rig.send(np.zeros(len(rig.ids)), sec=i + 1)
     assert stats.frames == 5 and stats.skipped_idle == 5 and stats.solved == 0
-    assert all(c.solver == "none" and not c.in_contact for c in rig.contacts)
+    assert all(c.solver == "none" and not c.in_contact and not c.contacts for c in rig.contacts)
     # Nobody subscribes to the deflection or traction images: neither is computed.
     rig.send(_delta_c(1.0, (0.0, 0.0)), sec=10)
     assert stats.solved == 1

@@ -204,6 +204,12 @@ def test_round_refinement_in_the_reconstructor(tmp_path):
     # Measured (40 mm apart, noise-free): 1.92 N, CoP 0.06 mm from their midpoint.
     assert res.refined
     assert res.total_force == pytest.approx(2.0, rel=0.08)
+    # One contact each, reported separately.
+    assert len(res.contacts) == 2
+    for i in (20, 51):
+        k = min(res.contacts, key=lambda k: np.hypot(*(np.asarray(k.center) - r.taxel_xy[i])))
+        assert np.hypot(*(np.asarray(k.center) - r.taxel_xy[i])) < 0.3e-3
+        assert k.force == pytest.approx(1.0, rel=0.1)
     assert np.hypot(*(np.asarray(res.cop) - (r.taxel_xy[20] + r.taxel_xy[51]) / 2)) < 0.3e-3
     # Idle taxels far away reading 1.8 counts (the driver's baseline offsets) seed nothing:
     # the result is the single contact's.

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -85,6 +86,11 @@ def test_frames_and_truth_follow_the_scenario(ros_context: Any) -> None:
         if t.total_force > 0:
             assert t.in_contact and t.contact_area > 0
             assert (t.center_of_pressure.x, t.center_of_pressure.y) == pytest.approx(tuple(center))
+            (k,) = t.contacts
+            assert k.force == t.total_force and k.profile == "hertz"
+            assert math.pi * k.radius**2 == pytest.approx(t.contact_area)
+        else:
+            assert not t.contacts
 
 
 def test_bad_scenario_is_rejected(ros_context: Any) -> None:

@@ -15,7 +15,7 @@ from sensor_msgs.msg import Image, PointCloud2, PointField
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from tactile_contact.msg import ContactState, GridGeometry
+from tactile_contact.msg import Contact, ContactState, GridGeometry
 
 
 class NonFiniteError(ValueError):
@@ -146,10 +146,22 @@ def taxel_markers(
     return MarkerArray(markers=[marker])
 
 
+def contact(c: Any) -> Contact:
+    """A Contact message from a :class:`tactile_contact.summary.Contact`."""
+    return Contact(
+        force=float(c.force),
+        center=Point(x=float(c.center[0]), y=float(c.center[1]), z=0.0),
+        radius=float(c.radius),
+        profile=str(c.profile),
+    )
+
+
 def contact_state(result: Any, patch: str, header: Header, **extra: Any) -> ContactState:
     """A ContactState from a reconstruction result; non-finite numbers are refused."""
     values = [result.total_force, result.contact_area, result.peak_pressure, *result.cop]
     _finite("contact summary", np.asarray(values, dtype=float))
+    contacts = getattr(result, "contacts", ())
+    _finite("contacts", np.array([[c.force, c.radius, *c.center] for c in contacts], float))
     msg = ContactState(
         header=header,
         patch=patch,
@@ -158,6 +170,7 @@ def contact_state(result: Any, patch: str, header: Header, **extra: Any) -> Cont
         center_of_pressure=Point(x=float(result.cop[0]), y=float(result.cop[1]), z=0.0),
         contact_area=float(result.contact_area),
         peak_pressure=float(result.peak_pressure),
+        contacts=[contact(c) for c in contacts],
     )
     for key, value in extra.items():
         setattr(msg, key, value)

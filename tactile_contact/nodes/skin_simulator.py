@@ -35,8 +35,10 @@ from tactile_contact.indenters import FlatPunch, HertzSphere
 from tactile_contact.layout import PatchLayout, load_layout
 from tactile_contact.msg import ContactState
 from tactile_contact.nodes import common as cm
+from tactile_contact.nodes import convert
 from tactile_contact.nodes.skin_driver import default_layout_path
 from tactile_contact.simulator import Indentation, SimPeriod, simulator_for_patch
+from tactile_contact.summary import Contact
 
 WARN_THROTTLE_S = 5.0
 
@@ -213,6 +215,8 @@ class SkinSimulatorNode(Node):
             msg.center_of_pressure.x = float(tr.center[0])
             msg.center_of_pressure.y = float(tr.center[1])
             msg.contact_area = math.pi * a * a
+            profile = "punch" if isinstance(self.indenter, FlatPunch) else "hertz"
+            msg.contacts = [convert.contact(Contact(tr.force, tr.center, a, profile))]
             peak = self.indenter.pressure_at_radius(np.array([0.0]), tr.force, el.young, el.poisson)
             msg.peak_pressure = float(np.max(peak)) if np.all(np.isfinite(peak)) else 0.0
         msg.taxels_used = int(self.patch.valid_mask().sum())
