@@ -129,6 +129,53 @@ def test_contact_summary_matches_the_indenter(ros_context: object, bundles: Path
     rig.close()
 
 
+def test_rviz_outputs_show_taxels_pressure_and_contacts(ros_context: object, bundles: Path) -> None:
+    from sensor_msgs.msg import PointCloud2
+    from visualization_msgs.msg import Marker, MarkerArray
+
+    rig = Rig(ros_context, bundles)
+    got: dict[str, list] = {"taxel_markers": [], "contact_markers": [], "pressure_cloud": []}
+    for topic, kind in (
+        ("taxel_markers", MarkerArray),
+        ("contact_markers", MarkerArray),
+        ("pressure_cloud", PointCloud2),
+    ):
+        rig.probe.create_subscription(kind, f"hexagon/{topic}", got[topic].append, rig.qos)
+    pipe = rig.node.pipelines["hexagon"]
+    publishers = (pipe.pub_markers, pipe.pub_contact_markers, pipe.pub_cloud)
+    assert spin_until(rig.executor, lambda: all(p.get_subscription_count() for p in publishers))
+    recon = pipe.recon
+    centre = tuple(recon.taxel_xy[30])
+    rig.send(_delta_c(1.0, centre))
+    assert spin_until(rig.executor, lambda: all(got.values()))
+    state = rig.contacts[-1]
+    # The contact: a DELETEALL (the previous frame's discs go), then its disc and its label.
+    clear, disc, label = got["contact_markers"][-1].markers
+    assert clear.action == Marker.DELETEALL
+    assert disc.type == Marker.CYLINDER and disc.header.frame_id == "skin_hexagon"
+    assert disc.scale.x == pytest.approx(2.0 * state.contacts[0].radius)
+    assert (disc.pose.position.x, disc.pose.position.y) == pytest.approx(
+        (state.center_of_pressure.x, state.center_of_pressure.y)
+    )
+    assert label.text.startswith(f"{state.total_force:.2f} N")
+    # The taxels: one sphere per taxel, the loaded one the reddest.
+    (taxels,) = got["taxel_markers"][-1].markers
+    assert len(taxels.points) == len(recon.taxel_xy) == len(taxels.colors)
+    red = np.array([c.r - c.b for c in taxels.colors])
+    xy = np.array([(p.x, p.y) for p in taxels.points])
+    assert np.hypot(*(xy[int(np.argmax(red))] - centre)) < 1e-9
+    # The pressure cloud: x, y, pressure per skin cell; its integral is the field's force.
+    cloud = got["pressure_cloud"][-1]
+    pts = np.frombuffer(bytes(cloud.data), "<f4").reshape(-1, 4)
+    grid = recon.traction_grid
+    assert len(pts) == int(np.count_nonzero(grid.mask))
+    assert np.isfinite(pts).all() and pts[:, 3].min() >= 0
+    # No contact: the DELETEALL alone clears the disc.
+    rig.send(np.zeros(len(rig.ids)), sec=2)
+    assert spin_until(rig.executor, lambda: len(got["contact_markers"][-1].markers) == 1)
+    rig.close()
+
+
 def test_idle_patch_and_unsubscribed_outputs_are_skipped(
     ros_context: object, bundles: Path
 ) -> None:

@@ -8,7 +8,8 @@ patches go on). Per patch it subscribes to ``<patch>/taxels`` and publishes
 - ``<patch>/traction`` (sensor_msgs/Image 32FC1, Pa) and ``<patch>/deflection`` (32FC1, m);
 - ``<patch>/traction_geometry``, ``<patch>/deflection_geometry`` (tactile_contact/GridGeometry,
   reliable + transient local, published once);
-- ``<patch>/taxel_markers`` (MarkerArray) and ``<patch>/pressure_cloud`` (PointCloud2) for rviz2;
+- ``<patch>/taxel_markers``, ``<patch>/contact_markers`` (MarkerArray) and
+  ``<patch>/pressure_cloud`` (PointCloud2) for rviz2;
 - ``/diagnostics`` (skips, stage timings, latency, errors).
 
 Work nobody asked for is skipped and counted: an output without subscribers is not computed
@@ -119,6 +120,9 @@ class PatchPipeline:
         }
         self.pub_markers = node.create_publisher(MarkerArray, f"{p}/taxel_markers", OUTPUT_QOS)
         self.pub_cloud = node.create_publisher(PointCloud2, f"{p}/pressure_cloud", OUTPUT_QOS)
+        self.pub_contact_markers = node.create_publisher(
+            MarkerArray, f"{p}/contact_markers", OUTPUT_QOS
+        )
         # Depth 1 by default: a reconstruction that falls behind drops old frames instead of
         # queueing them, so what it publishes is always the newest reading.
         input_qos = QoSProfile(depth=node.queue_depth, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -236,8 +240,8 @@ class PatchPipeline:
         self, header: Header, result: Any, delta_c: np.ndarray, valid: np.ndarray
     ) -> None:
         every = self.node.visualization_every
-        wanted = self.pub_markers.get_subscription_count() + self.pub_cloud.get_subscription_count()
-        if not wanted or self.stats.frames % every:
+        outputs = (self.pub_markers, self.pub_cloud, self.pub_contact_markers)
+        if not any(o.get_subscription_count() for o in outputs) or self.stats.frames % every:
             self.stats.skipped_visualization += 1
             return
         if self.pub_markers.get_subscription_count():
@@ -255,6 +259,10 @@ class PatchPipeline:
         if result.traction is not None and self.pub_cloud.get_subscription_count():
             self.pub_cloud.publish(
                 convert.pressure_cloud(self.recon.traction_grid, result.traction, header)
+            )
+        if self.pub_contact_markers.get_subscription_count():
+            self.pub_contact_markers.publish(
+                convert.contact_markers(result.contacts, header, self.name)
             )
 
     def diagnostics(self) -> Any:

@@ -123,6 +123,37 @@ def _colour(value: float, full_scale: float) -> ColorRGBA:
     return ColorRGBA(r=0.6 * (1 + s), g=0.6 * (1 + s), b=0.6 - 0.4 * s, a=1.0)
 
 
+#: Height [m] of a contact's disc per newton of its force.
+CONTACT_HEIGHT_PER_NEWTON = 2.0e-3
+
+
+def contact_markers(contacts: Any, header: Header, patch: str) -> MarkerArray:
+    """Each contact (:class:`tactile_contact.summary.Contact`) as a translucent disc of its
+    radius at its centre, CONTACT_HEIGHT_PER_NEWTON tall per newton, with its force as text.
+    A DELETEALL first clears the discs of the previous frame (there may be fewer contacts)."""
+    _finite("contacts", np.array([[c.force, c.radius, *c.center] for c in contacts], float))
+    ns = f"{patch}/contacts"
+    markers = [Marker(header=header, ns=ns, action=Marker.DELETEALL)]
+    for i, c in enumerate(contacts):
+        height = max(CONTACT_HEIGHT_PER_NEWTON * float(c.force), 1e-4)
+        disc = Marker(header=header, ns=ns, id=2 * i, type=Marker.CYLINDER, action=Marker.ADD)
+        disc.pose.position = Point(x=float(c.center[0]), y=float(c.center[1]), z=0.5 * height)
+        disc.pose.orientation.w = 1.0
+        disc.scale.x = disc.scale.y = 2.0 * float(c.radius)
+        disc.scale.z = height
+        disc.color = ColorRGBA(r=1.0, g=0.55, b=0.0, a=0.6)
+        label = Marker(
+            header=header, ns=ns, id=2 * i + 1, type=Marker.TEXT_VIEW_FACING, action=Marker.ADD
+        )
+        label.pose.position = Point(x=disc.pose.position.x, y=disc.pose.position.y, z=height)
+        label.pose.orientation.w = 1.0
+        label.scale.z = 3e-3
+        label.color = ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0)
+        label.text = f"{float(c.force):.2f} N ({c.profile})"
+        markers += [disc, label]
+    return MarkerArray(markers=markers)
+
+
 def taxel_markers(
     taxel_xy: np.ndarray,
     delta_c: np.ndarray,
