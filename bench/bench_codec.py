@@ -18,8 +18,9 @@ import uuid
 import can
 import numpy as np
 
+from tactile_contact.assembler import PeriodAssembler
 from tactile_contact.baseline import BaselineTracker
-from tactile_contact.codec import PeriodAssembler, decode_frame, reading_messages
+from tactile_contact.codec import decode_frame, reading_messages
 
 TRIANGLES = 16
 RATE_HZ = 100.0

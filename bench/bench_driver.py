@@ -28,7 +28,7 @@ import can
 import numpy as np
 import yaml
 
-from tactile_contact import codec
+from tactile_contact import assembler, codec
 from tactile_contact.layout import load_layout
 
 N_TRIANGLES = 16
@@ -76,7 +76,7 @@ def offline(path: Path, periods: int) -> dict[str, float]:
 
     rng = np.random.default_rng(0)
     frames = [m for k in range(periods) for m in period_frames(k, rng, 0.0)]
-    asm = codec.PeriodAssembler(modules=[(0, t) for t in range(N_TRIANGLES)])
+    asm = assembler.PeriodAssembler(modules=[(0, t) for t in range(N_TRIANGLES)])
     t = time.perf_counter()
     readings = asm.feed_many(frames)
     codec_s = time.perf_counter() - t

@@ -1,7 +1,7 @@
 """The ROS-free half of ``skin_driver``: bus opening, log replay, patch readings, health.
 
 :class:`SkinStream` turns received CAN messages into per-patch readings: the codec's
-:class:`~tactile_contact.codec.PeriodAssembler` pairs frames A and B into module readings,
+:class:`~tactile_contact.assembler.PeriodAssembler` pairs frames A and B into module readings,
 each patch gathers its modules' readings, and when every *live* module of the patch has a new
 reading (or ``max_wait_s`` has passed since the first one) the patch's
 :class:`~tactile_contact.baseline.BaselineTracker` turns the raw values into ΔC [F] and a
@@ -25,8 +25,8 @@ import can
 import numpy as np
 from numpy.typing import NDArray
 
+from tactile_contact import assembler, codec
 from tactile_contact import baseline as bl
-from tactile_contact import codec
 from tactile_contact.layout import PatchLayout
 from tactile_contact.modules import CHANNELS_PER_MODULE, taxel_id
 
@@ -258,7 +258,7 @@ class SkinStream:
                     raise ValueError(f"module board {key[0]} triangle {key[1]} in two patches")
                 self._where[key] = (st, i)
             self._patches.append(st)
-        self.assembler = codec.PeriodAssembler(
+        self.assembler = assembler.PeriodAssembler(
             id_classes=self.id_classes,
             modules=list(self._where),
             pair_window_s=pair_window_s,
@@ -467,7 +467,7 @@ class SkinStream:
         self,
         st: _PatchState,
         m: _ModuleState,
-        mc: codec.ModuleCounters | None,
+        mc: assembler.ModuleCounters | None,
         now: float,
         dt: float,
     ) -> DiagStatus:

@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from tactile_contact.assembler import PeriodAssembler
 from tactile_contact.codec import (
     ERROR_I2C,
     ERROR_NOT_CONNECTED,
@@ -18,7 +19,6 @@ from tactile_contact.codec import (
     BadFrameType,
     BadStatus,
     CodecError,
-    PeriodAssembler,
     TruncatedFrame,
     UnknownId,
     decode_frame,

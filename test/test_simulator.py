@@ -11,7 +11,7 @@ import can
 import numpy as np
 import pytest
 
-from tactile_contact.codec import PeriodAssembler
+from tactile_contact.assembler import PeriodAssembler
 from tactile_contact.modules import ROBOSKIN12, place_channels
 from tactile_contact.sensor import (
     SensorParams,

@@ -32,7 +32,7 @@ def test_frames_and_truth_follow_the_scenario(ros_context: Any) -> None:
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-    from tactile_contact.codec import PeriodAssembler
+    from tactile_contact.assembler import PeriodAssembler
     from tactile_contact.layout import load_layout
     from tactile_contact.msg import ContactState
     from test.rosutil import spin_until

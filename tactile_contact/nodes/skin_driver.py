@@ -478,6 +478,9 @@ class SkinDriver(LifecycleNode):
         self._diag_pub.publish(out)
 
     def _state_label(self) -> str:
+        # rclpy's LifecycleNode offers the state only through its ~/get_state service (a call
+        # to itself from a callback would deadlock a single-threaded executor); its state
+        # machine is the one truth, so read it rather than mirror every transition's outcome.
         return self._state_machine.current_state[1]
 
 
