@@ -104,12 +104,9 @@ def build_patch(patch: PatchLayout) -> tuple[dict[str, Any], dict[str, NDArray[A
     c = taxel_matrix(patch, tg)
     reg = laplacian(tg) if patch.solver.regulariser == "laplacian" else None
     inverse, lam = free_inverse(patch, c, reg)
-    from tactile_contact.elastic import love_matrix
-
+    # The output deflection is the forward model of the traction, the same one C is.
+    g_out = forward_matrix(patch, dg.centers(), tg)
     e = patch.elastomer
-    g_out = love_matrix(
-        dg.centers(), tg.centers(), tg.half_sizes(), e.thickness, e.young, e.poisson
-    )
     arrays: dict[str, NDArray[Any]] = {
         "forward": c,
         "inverse": inverse.astype(np.float32),
@@ -127,7 +124,14 @@ def build_patch(patch: PatchLayout) -> tuple[dict[str, Any], dict[str, NDArray[A
         from tactile_contact.round_contact import round_tables
 
         electrode = sen.taxel_radius if patch.model.taxel_average else 0.0
-        tables = round_tables(e.thickness, e.young, e.poisson, electrode)
+        tables = round_tables(
+            e.thickness,
+            e.young,
+            e.poisson,
+            electrode,
+            model=patch.model.kind,
+            psi=patch.model.psi,
+        )
         arrays["round_table"], arrays["round_radii"] = tables.table, tables.radii
         round_step = tables.step
     params = {

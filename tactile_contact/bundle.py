@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 FORMAT = "tactile_contact.bundle"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 MANIFEST = "manifest.json"
 
 

@@ -88,20 +88,27 @@ def round_tables(
     reach: float = 0.02,
     step: float = 1.0e-4,
     cell: float = 1.0e-4,
+    model: str = "love",
+    psi: str | float = "exact",
 ) -> RoundTables:
     """Tabulate R_s(r) [m/N] for r = 0 … ``reach`` in ``step`` (float64).
 
-    Each profile's exact cell averages on a regular ``cell`` grid are pushed through the Love
-    effective-deflection operator (zero-padded FFT, :func:`regular_grid_operator`); the
-    deflection field is then averaged over the electrode disc (8 × 24 points, bilinear) at
-    each distance. thickness h [m], young E [Pa], poisson ν, taxel_radius [m].
+    Each profile's exact cell averages on a regular ``cell`` grid are pushed through the
+    effective-deflection operator of ``model`` (zero-padded FFT, :func:`regular_grid_operator`:
+    ``"love"``, uniform pressure per cell, or ``"boussinesq"``, a point force p·A per cell with
+    the Muscari self term of ``psi``), so that the fit and the bundle's forward matrix share
+    one elastic model; the deflection field is then averaged over the electrode disc (8 × 24
+    points, bilinear) at each distance. thickness h [m], young E [Pa], poisson ν,
+    taxel_radius [m].
     """
     a = np.asarray(radii, dtype=np.float64)
     if a.ndim != 1 or len(a) < 2 or not np.all(np.diff(a) > 0) or not a[0] > 0:
         raise ValueError("radii must be at least two increasing positive radii [m]")
     half = reach + taxel_radius + 2 * cell
     n = 2 * math.ceil(half / cell) + 1  # odd: the contact centre is a cell centre
-    op = regular_grid_operator(n, n, cell, cell, thickness, young, poisson)
+    op = regular_grid_operator(n, n, cell, cell, thickness, young, poisson, model, psi)
+    # The Love operator takes cell pressures [Pa]; the point-force one, forces [N].
+    per_cell = 1.0 if model == "love" else cell * cell
     coords = (np.arange(n) - n // 2) * cell
     gx, gy = np.meshgrid(coords, coords, indexing="ij")
     centers = np.column_stack((gx.ravel(), gy.ravel()))
@@ -121,7 +128,7 @@ def round_tables(
             near = np.abs(centers).max(axis=1) <= radius + cell
             p = np.zeros(len(centers))
             p[near] = shape.pressure_on_cells(centers[near], hs, 1.0, (0.0, 0.0), young, poisson)
-            field = op.matvec(p).reshape(n, n)
+            field = op.matvec(per_cell * p).reshape(n, n)
             vals = scipy.ndimage.map_coordinates(field, [px.ravel(), py.ravel()], order=1)
             table[fi, ai] = vals.reshape(px.shape) @ w
     return RoundTables(a, float(step), table)

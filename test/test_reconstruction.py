@@ -84,6 +84,33 @@ def test_forward_matrix_averages_the_kernel_over_the_electrode(default):
     np.testing.assert_allclose(r.forward[:6], ref, atol=1e-2 * scale)
 
 
+def test_boussinesq_bundle_follows_its_model_throughout(tmp_path_factory, default):
+    """C, the output deflection operator and the round-contact tables of a ``boussinesq``
+    patch all come from the Boussinesq–Cerruti kernel (point force p·A per cell)."""
+    from tactile_contact.elastic import boussinesq_matrix
+    from tactile_contact.round_contact import round_tables
+
+    path, patch = _bundle(
+        tmp_path_factory, "bc", model={"kind": "boussinesq", "taxel_average": False}
+    )
+    r = Reconstructor.from_bundle(path, patch)
+    g, dg = r.traction_grid, r.deflection_grid
+
+    def bc(points):
+        return boussinesq_matrix(points, g.centers(), g.cell_area, 2e-3, 2.1e5, 0.5) * g.cell_area
+
+    np.testing.assert_allclose(r.forward, bc(patch.taxel_xy()), rtol=1e-12, atol=0)
+    ref = bc(dg.centers())
+    np.testing.assert_allclose(
+        np.asarray(r.bundle["deflection_operator"]), ref, rtol=1e-6, atol=1e-7 * np.abs(ref).max()
+    )
+    tables = round_tables(2e-3, 2.1e5, 0.5, 0.0, r.bundle["round_radii"], model="boussinesq")
+    np.testing.assert_allclose(r.bundle["round_table"], tables.table, rtol=1e-12, atol=0)
+    # Not the Love bundle's (the two models' near fields differ by a few %).
+    love = np.asarray(default[0].bundle["deflection_operator"])
+    assert np.abs(love - ref).max() > 0.02 * np.abs(ref).max()
+
+
 def test_params_and_geometry(default):
     r, patch = default
     assert r.params["thickness"] == 2e-3 and r.params["young"] == 2.1e5
