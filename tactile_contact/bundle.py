@@ -20,7 +20,7 @@ import hashlib
 import json
 import os
 import shutil
-import tempfile
+import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -109,7 +109,10 @@ def save_bundle(
         if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
             raise ValueError(f"array {name!r} contains NaN or inf")
     dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{dest.name}.tmp-", dir=dest.parent))
+    # Not tempfile.mkdtemp: that makes the folder private (0700), and a bundle is read by
+    # nodes that may run as other users. mkdir gives the umask's usual mode.
+    tmp = dest.parent / f".{dest.name}.tmp-{uuid.uuid4().hex}"
+    tmp.mkdir()
     try:
         index = {}
         for name, arr in arrays.items():

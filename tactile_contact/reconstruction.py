@@ -33,6 +33,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections import OrderedDict
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -139,7 +140,10 @@ class Reconstructor:
         self.max_contacts: int = int(p.get("max_contacts", 3))
         # Per-cell noise of the free solution, for the "violates non-negativity" test.
         self._cell_noise = self.noise * np.linalg.norm(self._inverse.astype(np.float64), axis=1)
-        self._solvers: dict[bytes, Any] = {}
+        # Per set of valid taxels (a taxel drops out, comes back): bounded, so a flickering
+        # taxel cannot grow it without end (each prepared NNLS solver holds an N × N matrix).
+        self._solvers: OrderedDict[bytes, Any] = OrderedDict()
+        self._seen: OrderedDict[bytes, int] = OrderedDict()
         self._round = None
         # The round fit's per-taxel error: an 8-bit reading minus a baseline, each rounded to a
         # count, errs by two independent roundings (1/√6 count RMS); the converter noise of a
@@ -309,17 +313,49 @@ class Reconstructor:
             contacts,
         )
 
+    def _cached(self, key: bytes) -> Any:
+        """The cached operator or solver under ``key`` (None if absent), now most recent."""
+        if key not in self._solvers:
+            return None
+        self._solvers.move_to_end(key)
+        return self._solvers[key]
+
+    def _cache(self, key: bytes, value: Any) -> Any:
+        self._solvers[key] = value
+        while len(self._solvers) > SOLVER_CACHE_SIZE:
+            self._solvers.popitem(last=False)
+        return value
+
+    def _recurring(self, key: bytes) -> bool:
+        """True from the second frame with this set of valid taxels on (counted for the last
+        SOLVER_CACHE_SIZE sets): a set met once, a taxel flickering out for one frame, is not
+        worth a prepared solver's N³ set-up."""
+        n = self._seen.pop(key, 0) + 1
+        self._seen[key] = n
+        while len(self._seen) > 4 * SOLVER_CACHE_SIZE:
+            self._seen.popitem(last=False)
+        return n >= 2
+
     def _masked_free(self, ok: NDArray) -> NDArray[np.float64]:
         """Free inverse for a subset of taxels (cached per subset; rows of C dropped)."""
         key = b"free" + np.packbits(ok).tobytes()
-        if key not in self._solvers:
+        inverse = self._cached(key)
+        if inverse is None:
             p = self.params
             a = self.forward[ok]
             rank = min(int(p["tsvd_rank"] or min(a.shape)), *a.shape)
-            self._solvers[key] = regularised_inverse(
-                a, self.method, float(p["tikhonov"]), self._regulariser(), float(p["rcond"]), rank
+            inverse = self._cache(
+                key,
+                regularised_inverse(
+                    a,
+                    self.method,
+                    float(p["tikhonov"]),
+                    self._regulariser(),
+                    float(p["rcond"]),
+                    rank,
+                ),
             )
-        return self._solvers[key]
+        return inverse
 
     def _regulariser(self) -> NDArray[np.float64] | None:
         return (
@@ -328,7 +364,7 @@ class Reconstructor:
 
     def _nnls(self, cols: NDArray | None, ok: NDArray, delta: NDArray, warm: bool):
         key = np.packbits(ok).tobytes() + (b"" if cols is None else np.packbits(cols).tobytes())
-        solver = self._solvers.get(key) if warm else None
+        solver = self._cached(key) if warm else None
         if solver is None:
             a = self.forward[ok] if cols is None else self.forward[np.ix_(ok, cols)]
             reg = self._regulariser()
@@ -337,9 +373,9 @@ class Reconstructor:
             solver = nnls_solver(
                 a, float(self.params["tikhonov"]), reg, str(self.params["nnls_method"])
             )
-            if warm:
+            if warm and (ok.all() or self._recurring(key)):
                 # Kept across frames: the one-off work (H⁻¹ on the Gram route) pays off.
-                self._solvers[key] = solver.prepare()
+                self._cache(key, solver.prepare())
         res = solver.solve(delta[ok], warm_start=warm)
         return np.asarray(res.x, dtype=np.float64), bool(res.success), int(res.iterations)
 
@@ -466,6 +502,10 @@ class Reconstructor:
             )
         return out, fits
 
+
+#: Operators and solvers kept, one per set of valid taxels (and pass): the full set and a few
+#: sets with taxels out. Each prepared NNLS solver holds N × N float64 (2.6 MB at N = 568).
+SOLVER_CACHE_SIZE = 8
 
 #: Contact radii [m] tried by the axisymmetric refinement.
 FIT_RADII = (0.75e-3, 1.0e-3, 1.5e-3, 2.0e-3, 3.0e-3, 4.0e-3, 6.0e-3)

@@ -189,6 +189,10 @@ def test_save_replaces_atomically_and_rejects_nan(tmp_path):
     save_bundle(tmp_path / "p", m, {"y": np.ones(2)})
     assert sorted(f.name for f in (tmp_path / "p").iterdir()) == ["manifest.json", "y.npy"]
     assert [f.name for f in tmp_path.iterdir()] == ["p"]  # no temporary folder left behind
+    # Readable by other users as any folder made under the umask is (not mkdtemp's 0700).
+    (tmp_path / "probe").mkdir()
+    assert (tmp_path / "p").stat().st_mode & 0o777 == (tmp_path / "probe").stat().st_mode & 0o777
+    (tmp_path / "probe").rmdir()
     with pytest.raises(ValueError, match="NaN"):
         save_bundle(tmp_path / "q", m, {"x": np.array([np.nan])})
     assert not (tmp_path / "q").exists() and [f.name for f in tmp_path.iterdir()] == ["p"]

@@ -221,6 +221,28 @@ def test_invalid_taxels_are_ignored(default, indentation):
     assert d.total_force == pytest.approx(b.total_force, rel=1e-6)
 
 
+def test_flickering_taxels_keep_the_solver_cache_bounded(tmp_path_factory, indentation):
+    """A different taxel out in every frame: the operators kept per set of valid taxels stay
+    at SOLVER_CACHE_SIZE, and a set met again after eviction gives the same result."""
+    from tactile_contact.reconstruction import SOLVER_CACHE_SIZE
+
+    path, patch = _bundle(tmp_path_factory, "flicker")
+    r = Reconstructor.from_bundle(path, patch)
+    delta, _ = indentation
+    rng = np.random.default_rng(5)
+    firsts = {}
+    for k in range(3 * SOLVER_CACHE_SIZE):
+        out = int(rng.integers(72)) if k < 2 * SOLVER_CACHE_SIZE else k - 2 * SOLVER_CACHE_SIZE
+        valid = np.ones(72, bool)
+        valid[out] = False
+        res = r.solve_deflection(delta, valid)
+        assert len(r._solvers) <= SOLVER_CACHE_SIZE
+        if out in firsts:
+            assert res.total_force == pytest.approx(firsts[out], rel=1e-9)
+        firsts.setdefault(out, res.total_force)
+    assert res.in_contact and res.total_force == pytest.approx(1.5, rel=0.15)
+
+
 def test_pinv_path_is_the_precomputed_product(point_pinv, indentation):
     r, _ = point_pinv
     delta, _ = indentation
