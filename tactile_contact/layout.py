@@ -32,7 +32,8 @@ MODELS = ("love", "boussinesq")
 MASKS = ("taxels", "modules", "none")
 SOLVER_METHODS = ("nnls_tikhonov", "tikhonov", "tsvd", "pinv")
 REGULARISERS = ("identity", "laplacian")
-#: Two taxels closer than this [m] are treated as the same place (a layout mistake).
+#: Two taxels closer than this [m] are treated as the same place (a layout mistake), whatever
+#: their electrodes; taxels whose electrode discs overlap are refused too.
 MIN_TAXEL_SEPARATION = 1.0e-3
 
 
@@ -520,12 +521,15 @@ def _check_patch(c: _Ctx, patch: PatchLayout, path: str) -> None:
     d2 = ((xy[:, None, :] - xy[None, :, :]) ** 2).sum(-1)
     np.fill_diagonal(d2, np.inf)
     i, j = np.unravel_index(int(np.argmin(d2)), d2.shape)
-    if d2[i, j] < MIN_TAXEL_SEPARATION**2:
+    # Two electrodes cannot share skin: their discs must not overlap.
+    limit = max(MIN_TAXEL_SEPARATION, 2.0 * patch.sensor.taxel_radius)
+    if d2[i, j] < limit**2:
         raise c.err(
             f"{path}.modules[{owner[j]}]",
             f"overlapping taxels: a taxel at "
             f"({xy[j, 0]:.4f}, {xy[j, 1]:.4f}) m is {math.sqrt(d2[i, j]) * 1e3:.2f} mm from "
-            f"one of modules[{owner[i]}] (minimum {MIN_TAXEL_SEPARATION * 1e3:g} mm)",
+            f"one of modules[{owner[i]}] (their electrodes of radius "
+            f"{patch.sensor.taxel_radius * 1e3:g} mm overlap below {limit * 1e3:g} mm)",
         )
 
 
