@@ -221,8 +221,9 @@ _MIXED = {
                     "type": "roboskin12",
                     "board": 1,
                     "triangle": 1,
-                    "position": [0.0115, 0.0066],
-                    "rotation_deg": 180,
+                    # Beside the first, as triangles 4 and 3 of the hexagon patch tile.
+                    "position": [0.0, -0.019321],
+                    "rotation_deg": 60,
                 },
                 {"type": "icub_v2_10pad", "board": 2, "triangle": 3, "position": [0.04, 0.0]},
             ],
