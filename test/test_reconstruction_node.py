@@ -173,6 +173,17 @@ def test_rviz_outputs_show_taxels_pressure_and_contacts(ros_context: object, bun
     # No contact: the DELETEALL alone clears the disc.
     rig.send(np.zeros(len(rig.ids)), sec=2)
     assert spin_until(rig.executor, lambda: len(got["contact_markers"][-1].markers) == 1)
+    # Every topic the package's rviz2 configuration shows is one this node publishes.
+    import yaml
+
+    config = yaml.safe_load((ROOT / "rviz" / "tactile_contact.rviz").read_text())
+    shown = {
+        d["Topic"]["Value"] for d in config["Visualization Manager"]["Displays"] if "Topic" in d
+    }
+    published = {
+        t for t, _ in rig.node.get_publisher_names_and_types_by_node(rig.node.get_name(), "/")
+    }
+    assert shown and shown <= published, shown - published
     rig.close()
 
 
