@@ -182,9 +182,11 @@ def build_patch(patch: PatchLayout) -> tuple[dict[str, Any], dict[str, NDArray[A
     return manifest, arrays
 
 
-def _build_one(patch: PatchLayout, dest: str) -> tuple[str, float]:
+def _build_one(patch: PatchLayout, dest: str, source: str | None = None) -> tuple[str, float]:
     t0 = time.perf_counter()
     manifest, arrays = build_patch(patch)
+    if source is not None:
+        manifest["layout_source"] = source
     save_bundle(dest, manifest, arrays)
     return patch.name, time.perf_counter() - t0
 
@@ -201,6 +203,8 @@ def build_layout(
     """Build the bundles of a layout file under ``out_dir``; returns patch → status
     (``built`` or ``up-to-date``). Raises LayoutError / BundleError / ValueError."""
     lay = load_layout(layout)
+    # Recorded so that loading can tell when the file changed after the build.
+    source = str(Path(layout).resolve())
     chosen = [lay.patch(n) for n in patches] if patches else list(lay.patches)
     out = Path(out_dir)
     status: dict[str, str] = {}
@@ -222,7 +226,7 @@ def build_layout(
     try:
         if workers == 1:
             for p in todo:
-                _build_one(p, str(out / p.name))
+                _build_one(p, str(out / p.name), source)
                 status[p.name] = "built"
                 if bar is not None:
                     bar.update(1)
@@ -231,7 +235,7 @@ def build_layout(
             # child would inherit in an undefined state.
             ctx = multiprocessing.get_context("forkserver")
             with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-                futs = {pool.submit(_build_one, p, str(out / p.name)): p for p in todo}
+                futs = {pool.submit(_build_one, p, str(out / p.name), source): p for p in todo}
                 for fut in cf.as_completed(futs):
                     name, _ = fut.result()
                     status[name] = "built"

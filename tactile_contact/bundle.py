@@ -170,8 +170,41 @@ def read_manifest(path: str | Path) -> dict[str, Any]:
     return m
 
 
+def _since(m: dict[str, Any]) -> str:
+    source = m.get("layout_source")
+    return f"; built from {source}" if isinstance(source, str) else ""
+
+
+def _source_patch(p: Path, m: dict[str, Any]) -> Any:
+    """The patch of the layout file the bundle was built from, None if that file is gone (or
+    was never recorded). Raises BundleStaleError if the file no longer loads or no longer
+    holds the patch: the bundle cannot be trusted to match the skin it describes."""
+    from tactile_contact.layout import LayoutError, load_layout
+
+    source = m.get("layout_source")
+    if not isinstance(source, str) or not Path(source).is_file():
+        return None
+    try:
+        layout = load_layout(source)
+    except LayoutError as exc:
+        raise BundleStaleError(
+            f"{p}: its layout file no longer loads ({exc}); fix it or rebuild the bundle"
+        ) from None
+    try:
+        return layout.patch(str(m["patch"]))
+    except KeyError:
+        raise BundleStaleError(
+            f"{p}: its layout file {source} no longer has patch {m['patch']!r}; rebuild"
+        ) from None
+
+
 def load_bundle(
-    path: str | Path, expected_layout: Any = None, *, verify: bool = True, mmap: bool = True
+    path: str | Path,
+    expected_layout: Any = None,
+    *,
+    verify: bool = True,
+    mmap: bool = True,
+    check_source: bool = True,
 ) -> Bundle:
     """Open the bundle at ``path``.
 
@@ -181,9 +214,15 @@ def load_bundle(
             parameters (else :class:`BundleStaleError`).
         verify: check every array's sha256 (reads each file once).
         mmap: memory-map the arrays (read-only) instead of reading them.
+        check_source: without ``expected_layout``, compare the bundle with the layout file it
+            was built from (``layout_source``, recorded by ``tactile-contact-build``) when that
+            file still exists: a module moved or a parameter changed since the build makes it
+            stale (:class:`BundleStaleError`).
     """
     p = Path(path)
     m = read_manifest(p)
+    if expected_layout is None and check_source:
+        expected_layout = _source_patch(p, m)
     if expected_layout is not None:
         if m["patch"] != expected_layout.name:
             raise BundleForeignError(
@@ -192,12 +231,12 @@ def load_bundle(
         if m["layout_hash"] != expected_layout.layout_hash():
             raise BundleStaleError(
                 f"{p}: built for another module layout of patch "
-                f"{m['patch']!r} (layout hash differs); rebuild it"
+                f"{m['patch']!r} (layout hash differs{_since(m)}); rebuild it"
             )
         if m["parameter_hash"] != expected_layout.parameter_hash():
             raise BundleStaleError(
                 f"{p}: built from other parameters of patch {m['patch']!r} "
-                "(parameter hash differs); rebuild it"
+                f"(parameter hash differs{_since(m)}); rebuild it"
             )
     arrays: dict[str, NDArray[Any]] = {}
     index = m["arrays"]

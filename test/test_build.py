@@ -69,3 +69,32 @@ def test_bad_yaml_is_an_error(tmp_path):
     assert r.returncode == 1 and r.stderr.startswith("ERROR: ") and "cannot read" in r.stderr
     r = run(str(ROOT / "config" / "hexagon_patch.yaml"), "-o", str(tmp_path), "--patch", "nope")
     assert r.returncode == 1 and "no patch named 'nope'" in r.stderr
+
+
+def test_a_bundle_whose_layout_file_changed_is_refused_without_being_told_the_layout(tmp_path):
+    """The node loads bundles by path alone: the layout file recorded at build time tells a
+    module moved (or a parameter changed) since, and the stale bundle is refused."""
+    import pytest
+
+    from tactile_contact import Reconstructor
+    from tactile_contact.bundle import BundleStaleError
+
+    doc = yaml.safe_load((ROOT / "config" / "robot_skin.yaml").read_text())
+    layout = tmp_path / "robot.yaml"
+    layout.write_text(yaml.safe_dump(doc))
+    assert run(str(layout), "-o", str(tmp_path / "b"), "--quiet").returncode == 0
+    first, second = (p["name"] for p in doc["patches"])
+    Reconstructor.from_bundle(tmp_path / "b" / first)
+    # Move one module of the second patch by a taxel pitch: only that bundle is stale.
+    x, y = doc["patches"][1]["modules"][0]["position"]
+    doc["patches"][1]["modules"][0]["position"] = [x + 0.0055, y]
+    layout.write_text(yaml.safe_dump(doc))
+    Reconstructor.from_bundle(tmp_path / "b" / first)
+    with pytest.raises(BundleStaleError, match=f"layout hash differs; built from {layout}"):
+        Reconstructor.from_bundle(tmp_path / "b" / second)
+    # A layout file that no longer loads: refused with its error; gone: not checked.
+    layout.write_text("patches: [")
+    with pytest.raises(BundleStaleError, match="layout file no longer loads"):
+        Reconstructor.from_bundle(tmp_path / "b" / first)
+    layout.unlink()
+    Reconstructor.from_bundle(tmp_path / "b" / second)
