@@ -1,5 +1,7 @@
 """Record the pipeline's topics to rosbag2 files and replay them, with plain rclpy.
 
+Reading (:func:`read_messages`) needs no ROS; recording and replaying take an rclpy node.
+
 rosbag2 itself is not on PyPI, so bags are written and read with the ``rosbags`` library
 (sqlite3 or MCAP storage, rosbag2 format version 8 or 9) and travel through rclpy as raw CDR:
 recording subscribes with ``raw=True`` and stores the bytes as received; replaying publishes
@@ -17,17 +19,21 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.msg import get_types_from_msg
 
 _PACKAGE = "tactile_contact"
 
-# A best-effort subscription matches reliable and best-effort publishers alike, and a reliable
-# publisher matches both kinds of subscription; the depth absorbs bursts.
-_RECORD_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
-_PLAY_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
+
+def _qos(reliable: bool) -> Any:
+    # A best-effort subscription matches reliable and best-effort publishers alike, and a
+    # reliable publisher matches both kinds of subscription; the depth absorbs bursts. rclpy
+    # is imported here, not at the top: reading a bag (read_messages) needs no ROS.
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    policy = ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT
+    return QoSProfile(depth=200, reliability=policy)
 
 
 class BagError(RuntimeError):
@@ -112,7 +118,7 @@ class BagRecorder:
             self.counts[topic] = 0
             self._subs.append(
                 node.create_subscription(
-                    cls, topic, self._make_callback(topic, conn), _RECORD_QOS, raw=True
+                    cls, topic, self._make_callback(topic, conn), _qos(False), raw=True
                 )
             )
 
@@ -196,7 +202,7 @@ class BagPlayer:
             types = {c.topic: c.msgtype for c in conns}
         self._publishers = {
             topic: node.create_publisher(
-                message_class(msgtype), self._remap.get(topic, topic), _PLAY_QOS
+                message_class(msgtype), self._remap.get(topic, topic), _qos(True)
             )
             for topic, msgtype in types.items()
         }

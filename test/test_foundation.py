@@ -47,3 +47,27 @@ def test_ci_runs_the_readme_test_command() -> None:
     assert "make test" in (ROOT / ".ci" / "run").read_text()
     readme = (ROOT / "README.md").read_text()
     assert "make demo" in readme and "make test" in readme
+
+
+def test_the_core_library_imports_no_ros() -> None:
+    """Every module outside tactile_contact.nodes (and the generated msg package) imports
+    without loading rclpy or a ROS message package: the core runs and tests without ROS.
+    A fresh interpreter, so that other tests' imports do not hide one."""
+    import sys
+
+    pkg = ROOT / "tactile_contact"
+    modules = [p.stem for p in pkg.glob("*.py") if p.stem != "__init__"]
+    packages = [p.name for p in pkg.iterdir() if (p / "__init__.py").is_file()]
+    core = sorted(modules + [p for p in packages if p not in ("nodes", "msg")])
+    assert {"reconstruction", "bag", "codec", "cli", "demo", "elastic"} <= set(core)
+    code = (
+        "import importlib, sys\n"
+        f"for m in {core!r}:\n"
+        "    importlib.import_module('tactile_contact.' + m)\n"
+        "ros = sorted(m for m in sys.modules if m.split('.')[0] == 'rclpy'"
+        " or m.split('.')[0].endswith('_msgs') or m == 'tactile_contact.msg')\n"
+        "print(ros)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]", out.stdout
