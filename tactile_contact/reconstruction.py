@@ -45,7 +45,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from tactile_contact.bundle import Bundle, load_bundle
 from tactile_contact.grids import Grid, distance_to_points
-from tactile_contact.sensor import delta_c_in_range, delta_c_to_compression, value_count_farad
+from tactile_contact.sensor import (
+    compression_in_range,
+    delta_c_in_range,
+    delta_c_to_compression,
+    value_count_farad,
+)
 from tactile_contact.summary import Contact, summarize
 
 
@@ -72,6 +77,8 @@ class ContactResult:
         taxels_active: valid taxels with |δ| above the contact threshold.
         refined: a refinement (round contacts, or the axisymmetric fit) replaced the grid
             solution.
+        taxels_used: valid taxels the solve used (those excluded: ``valid`` False, NaN, out
+            of range).
         contacts: the contacts the summary adds up (:class:`tactile_contact.summary.Contact`):
             one per fitted round contact, else the field as one contact; empty without
             contact.
@@ -92,6 +99,7 @@ class ContactResult:
     taxels_active: int
     refined: bool = False
     contacts: tuple[Contact, ...] = ()
+    taxels_used: int = 0
 
 
 def _grid(bundle: Bundle, key: str) -> Grid:
@@ -117,6 +125,8 @@ class Reconstructor:
         forward: (K, N) matrix C [m/Pa] from traction cells to taxel compressions.
         fit_sigma: per-taxel error [m] the round fit's posterior assumes (one count / √6).
         max_contacts: separate round contacts fitted at most (the layout's ``max_contacts``).
+        full_scale: largest |ΔC| [F] an 8-bit reading gives (256 counts); beyond it a taxel
+            is excluded.
     """
 
     def __init__(self, bundle: Bundle) -> None:
@@ -151,6 +161,8 @@ class Reconstructor:
         # for the free solution's non-negativity test.
         lsb = value_count_farad(float(p["farad_per_count"]), int(p["shift"]))
         self._count_sigma = float(self.compression(np.array([lsb]))[0]) / math.sqrt(6.0)
+        # The largest |ΔC| [F] a reading can carry: the 8-bit value's whole range.
+        self.full_scale: float = 256.0 * lsb
         self.fit_sigma: float = self._count_sigma
         if p.get("refine") == "round":
             from tactile_contact.round_contact import RoundTables
@@ -200,14 +212,19 @@ class Reconstructor:
     ) -> ContactResult:
         """Reconstruct from capacitance changes ΔC [F] (K,), bundle taxel order.
 
-        ``valid`` (K,) bool excludes taxels (NaN readings are excluded too, and readings at or
-        below −C0, which no compression explains). ``want_*`` False skips that output.
+        ``valid`` (K,) bool excludes taxels. Excluded too: NaN readings, readings at or below
+        −C0 (no compression explains them) and readings beyond ``full_scale`` (no 8-bit
+        reading gives them: a count→farad gain or shift that differs between driver and
+        bundle, or a unit mistake). ``ContactResult.taxels_used`` counts the taxels used.
+        ``want_*`` False skips that output.
         """
         dc, ok = self._check(delta_c, "delta_c", valid)
         p = self.params
         ok &= delta_c_in_range(dc, p["thickness"], p["epsilon_r"], p["area"])
+        ok &= np.abs(dc) <= self.full_scale
         delta = np.where(ok, self.compression(np.where(ok, dc, 0.0)), 0.0)
-        return self._solve(delta, ok, want_traction, want_deflection)
+        res = self._solve(delta, ok, want_traction, want_deflection)
+        return dataclasses.replace(res, taxels_used=int(ok.sum()))
 
     def solve_deflection(
         self,
@@ -217,9 +234,12 @@ class Reconstructor:
         want_traction: bool = True,
         want_deflection: bool = True,
     ) -> ContactResult:
-        """Reconstruct from taxel compressions δ [m] (K,), bundle taxel order."""
+        """Reconstruct from taxel compressions δ [m] (K,), bundle taxel order. NaN and
+        compressions of the whole layer or more (δ ≥ h) are excluded like ``valid`` False."""
         d, ok = self._check(delta, "delta", valid)
-        return self._solve(d, ok, want_traction, want_deflection)
+        ok &= compression_in_range(d, self.params["thickness"])
+        res = self._solve(np.where(ok, d, 0.0), ok, want_traction, want_deflection)
+        return dataclasses.replace(res, taxels_used=int(ok.sum()))
 
     # ----------------------------------------------------------------------------------------
 

@@ -219,6 +219,15 @@ def test_invalid_taxels_are_ignored(default, indentation):
     dc[10] = -1.0
     d = r.solve(dc)
     assert d.total_force == pytest.approx(b.total_force, rel=1e-6)
+    assert d.taxels_used == b.taxels_used == 71
+    # Beyond the converter's full scale (no 8-bit reading gives 1 nF, ~4000 C0) and a
+    # compression of the whole layer: excluded too, and counted.
+    dc[10] = 1e-9
+    assert r.solve(dc).total_force == pytest.approx(b.total_force, rel=1e-6)
+    assert r.solve(dc).taxels_used == 71
+    e = r.solve_deflection(np.where(valid, delta, 2e-3))
+    assert e.total_force == pytest.approx(b.total_force, rel=1e-6) and e.taxels_used == 71
+    assert r.solve_deflection(delta).taxels_used == 72
 
 
 def test_flickering_taxels_keep_the_solver_cache_bounded(tmp_path_factory, indentation):

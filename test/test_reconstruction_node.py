@@ -229,6 +229,17 @@ def test_bad_frames_are_counted_and_the_node_keeps_running(
     assert np.isfinite([state.total_force, state.contact_area, state.peak_pressure]).all()
     assert state.taxels_used == len(rig.ids) - 8
     assert state.total_force == pytest.approx(1.0, rel=0.15)
+    # A reading no 8-bit value gives (a gain mismatch between driver and bundle): left out,
+    # counted and said on /diagnostics; the frame is still solved.
+    dc[8] = 1e-9
+    rig.send(dc, status, sec=2)
+    state = rig.contacts[-1]
+    assert state.taxels_used == len(rig.ids) - 9
+    assert state.total_force == pytest.approx(1.0, rel=0.15)
+    assert pipeline.stats.out_of_range == 1
+    status_report = pipeline.diagnostics()
+    values = {kv.key: kv.value for kv in status_report.values}
+    assert values["out_of_range_readings"] == "1" and "full scale" in status_report.message
     rig.close()
 
 

@@ -88,6 +88,7 @@ class PatchStats:
     skipped_images: int = 0
     skipped_visualization: int = 0
     bad_frames: int = 0
+    out_of_range: int = 0
     unpublishable: int = 0
     last_error: str = ""
     latency_s: deque = field(default_factory=lambda: deque(maxlen=1000))
@@ -186,6 +187,18 @@ class PatchPipeline:
             want_deflection=want_deflection,
         )
         t2 = time.perf_counter()
+        out_of_range = int(valid.sum()) - result.taxels_used
+        if out_of_range:
+            # Readings no 8-bit value gives: the driver and the bundle disagree on the
+            # count→farad gain or shift. Said, counted, and the other taxels still solved.
+            stats.out_of_range += out_of_range
+            stats.last_error = (
+                f"{out_of_range} taxel(s) read beyond the converter's full scale "
+                f"(|ΔC| > {self.recon.full_scale:.3g} F) or below −C0; left out"
+            )
+            self.node.get_logger().warning(
+                f"patch {self.name}: {stats.last_error}", throttle_duration_sec=5.0
+            )
         stats.time("map", t1 - t0)
         stats.time("solve", t2 - t1)
         if not result.in_contact:
@@ -227,7 +240,7 @@ class PatchPipeline:
                     residual_norm=float(np.nan_to_num(result.residual_norm)),
                     solve_time=float(result.solve_time),
                     latency=float(latency),
-                    taxels_used=int(valid.sum()),
+                    taxels_used=int(result.taxels_used),
                     taxels_active=int(result.taxels_active),
                 )
             )
@@ -277,6 +290,7 @@ class PatchPipeline:
             "skipped_images": s.skipped_images,
             "skipped_visualization": s.skipped_visualization,
             "bad_frames": s.bad_frames,
+            "out_of_range_readings": s.out_of_range,
             "unpublishable": s.unpublishable,
         }
         for stage, times in s.stage_s.items():
@@ -287,7 +301,7 @@ class PatchPipeline:
             values["latency_median_ms"] = float(np.median(s.latency_s) * 1e3)
             values["latency_p99_ms"] = float(np.percentile(s.latency_s, 99) * 1e3)
         level, message = OK, "ok"
-        if s.bad_frames or s.unpublishable:
+        if s.bad_frames or s.unpublishable or s.out_of_range:
             level, message = WARN, s.last_error
         if s.frames == 0:
             level, message = WARN, "no taxel frames received yet"
