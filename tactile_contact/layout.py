@@ -429,6 +429,9 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
         poisson=c.number(e, "poisson", ep, 0.5, lo=-1.0, lo_open=True, hi=0.5),
     )
     psi: str | float = mod.get("psi", "exact")
+    if kind == "love" and "psi" in mod:
+        # Silently ignoring it would let a user believe the Ψ they set shapes the matrices.
+        raise c.err(f"{path}.model.psi", "only the boussinesq model has a Ψ (kind is love)")
     if kind == "boussinesq" and not (
         psi == "exact"
         or (isinstance(psi, (int, float)) and not isinstance(psi, bool) and 0 < psi < 10)

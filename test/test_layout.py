@@ -132,6 +132,11 @@ M = ("patches", 0, "modules")
         ),
         ((*M, 2, "triangle"), 1, "patches[0].modules[2]: duplicate CAN address board 0 triangle 1"),
         ((*M, 2, "position"), [0.0003, 0.0], "patches[0].modules[4]: overlapping taxels"),
+        (
+            ("patches", 0, "model", "psi"),
+            0.25,
+            "patches[0].model.psi: only the boussinesq model has a Ψ (kind is love)",
+        ),
         # 3 mm apart: nothing coincides, but 2 mm-radius electrodes would share skin.
         ((*M, 2, "position"), [0.003, 0.0], "electrodes of radius 2 mm overlap below 4 mm"),
         ((*M, 0, "board"), 16, "patches[0].modules[0].board: must be <= 15, got 16"),
