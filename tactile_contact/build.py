@@ -87,14 +87,68 @@ def taxel_matrix(patch: PatchLayout, grid: Grid) -> NDArray[np.float64]:
     return np.einsum("kqn,q->kn", c, w)
 
 
-def free_inverse(patch: PatchLayout, c: NDArray, reg: NDArray | None) -> tuple[NDArray, float]:
-    """(N, K) free inverse operator of the patch's method and the absolute λ used."""
+#: The representative reading a rule picks λ or the TSVD rank for: a 12 mm sphere [m radius]
+#: pressing this force [N] on the taxel nearest the centroid of the taxels (the centroid
+#: itself can fall where modules meet, between taxels 7.5 mm away), plus the layout's noise
+#: (seeded).
+RULE_SPHERE_RADIUS = 6.0e-3
+RULE_FORCE = 2.0
+RULE_SEED = 0
+
+
+def representative_reading(patch: PatchLayout, c: NDArray) -> NDArray[np.float64]:
+    """Compressions [m] at the taxels that a λ or rank rule is applied to (RULE_*): the exact
+    cell averages of the sphere's Hertz pressure on the patch's traction grid through C, plus
+    Gaussian noise of the layout's ``noise`` [m] (without noise, GCV and the L-curve would ask
+    for no regularisation at all)."""
+    from tactile_contact.indenters import HertzSphere
+
+    tg, _ = grids_for(patch)
+    e = patch.elastomer
+    xy = patch.taxel_xy()
+    centre = xy[int(np.argmin(np.hypot(*(xy - xy.mean(axis=0)).T)))]
+    q = HertzSphere(RULE_SPHERE_RADIUS).pressure_on_cells(
+        tg.centers(), tg.half_sizes(), RULE_FORCE, centre, e.young, e.poisson
+    )
+    rng = np.random.default_rng(RULE_SEED)
+    return c @ q + rng.normal(0.0, patch.solver.noise, c.shape[0])
+
+
+def regularisation(patch: PatchLayout, c: NDArray, reg: NDArray | None) -> tuple[float, int]:
+    """(absolute Tikhonov λ, TSVD rank) of the patch's solver options: a number as given
+    (λ relative to the largest singular value of C), or a rule (``gcv``, ``lcurve``,
+    ``discrepancy`` with the layout's ``noise``; tactile_contact.solvers.SvdInverse) applied to
+    :func:`representative_reading`."""
+    s = patch.solver
+    rules = isinstance(s.tikhonov, str) or isinstance(s.tsvd_rank, str)
+    d = representative_reading(patch, c) if rules else None
+    if isinstance(s.tikhonov, str):
+        from tactile_contact.solvers import SvdInverse
+
+        lam = SvdInverse(c, regulariser=reg).choose_lambda(s.tikhonov, d, noise=s.noise)
+    else:
+        lam = s.tikhonov * float(np.linalg.norm(c, 2))
+    if isinstance(s.tsvd_rank, str):
+        from tactile_contact.solvers import SvdInverse
+
+        rank = SvdInverse(c).choose_rank(s.tsvd_rank, d, noise=s.noise)
+    else:
+        rank = min(s.tsvd_rank or min(c.shape), *c.shape)
+    return float(lam), int(rank)
+
+
+def free_inverse(
+    patch: PatchLayout,
+    c: NDArray,
+    reg: NDArray | None,
+    chosen: tuple[float, int] | None = None,
+) -> tuple[NDArray, float]:
+    """(N, K) free inverse operator of the patch's method and the absolute λ used
+    (``chosen``: λ and rank from :func:`regularisation`, computed here when None)."""
     from tactile_contact.reconstruction import regularised_inverse
 
-    s = patch.solver
-    lam = s.tikhonov * float(np.linalg.norm(c, 2))
-    rank = min(s.tsvd_rank or min(c.shape), *c.shape)
-    return regularised_inverse(c, s.method, lam, reg, s.rcond, rank), lam
+    lam, rank = chosen if chosen is not None else regularisation(patch, c, reg)
+    return regularised_inverse(c, patch.solver.method, lam, reg, patch.solver.rcond, rank), lam
 
 
 def build_patch(patch: PatchLayout) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
@@ -103,7 +157,8 @@ def build_patch(patch: PatchLayout) -> tuple[dict[str, Any], dict[str, NDArray[A
     tg, dg = grids_for(patch)
     c = taxel_matrix(patch, tg)
     reg = laplacian(tg) if patch.solver.regulariser == "laplacian" else None
-    inverse, lam = free_inverse(patch, c, reg)
+    lam, rank = regularisation(patch, c, reg)
+    inverse, _ = free_inverse(patch, c, reg, (lam, rank))
     # The output deflection is the forward model of the traction, the same one C is.
     g_out = forward_matrix(patch, dg.centers(), tg)
     e = patch.elastomer
@@ -151,10 +206,12 @@ def build_patch(patch: PatchLayout) -> tuple[dict[str, Any], dict[str, NDArray[A
         "deflection_cell": dg.cell_size,
         "method": s.method,
         "regulariser": s.regulariser,
-        "tikhonov_relative": s.tikhonov,
+        "tikhonov_relative": lam / float(np.linalg.norm(c, 2)),
+        "tikhonov_rule": s.tikhonov if isinstance(s.tikhonov, str) else None,
         "tikhonov": lam,
         "rcond": s.rcond,
-        "tsvd_rank": s.tsvd_rank,
+        "tsvd_rank": rank if s.tsvd_rank is not None else None,
+        "tsvd_rule": s.tsvd_rank if isinstance(s.tsvd_rank, str) else None,
         "noise": s.noise,
         "contact_threshold": s.contact_threshold,
         "nnls_method": s.nnls_method,

@@ -32,6 +32,9 @@ MODELS = ("love", "boussinesq")
 MASKS = ("taxels", "modules", "none")
 SOLVER_METHODS = ("nnls_tikhonov", "tikhonov", "tsvd", "pinv")
 REGULARISERS = ("identity", "laplacian")
+#: Rules that pick the Tikhonov λ or the TSVD rank at build time
+#: (tactile_contact.build.regularisation).
+PARAMETER_RULES = ("gcv", "lcurve", "discrepancy")
 #: Two taxels closer than this [m] are treated as the same place (a layout mistake), whatever
 #: their electrodes; taxels whose electrode discs overlap are refused too.
 MIN_TAXEL_SEPARATION = 1.0e-3
@@ -140,9 +143,10 @@ class SolverSpec:
     Attributes:
         method: ``nnls_tikhonov`` (default), ``tikhonov``, ``tsvd`` or ``pinv`` (the paper's).
         regulariser: ``identity`` or ``laplacian`` (smoothness) for the Tikhonov term.
-        tikhonov: λ relative to the largest singular value of C [-].
+        tikhonov: λ relative to the largest singular value of C [-], or a rule that picks it
+            at build time (``gcv``, ``lcurve``, ``discrepancy``; PARAMETER_RULES).
         rcond: relative singular-value cut-off of ``pinv`` [-].
-        tsvd_rank: singular values kept by ``tsvd`` (None: all of them).
+        tsvd_rank: singular values kept by ``tsvd`` (None: all of them), or a rule.
         noise: taxel compression noise [m], for the free solution's non-negativity test.
         contact_threshold: a frame is in contact when a valid taxel's |δ| exceeds it [m]. The
             default, 1.1e-5 m (≈ 1.05 count), ignores the ±1-count readings that a baseline
@@ -169,9 +173,9 @@ class SolverSpec:
 
     method: str = "nnls_tikhonov"
     regulariser: str = "identity"
-    tikhonov: float = 0.1
+    tikhonov: float | str = 0.1
     rcond: float = 1.0e-3
-    tsvd_rank: int | None = None
+    tsvd_rank: int | str | None = None
     noise: float = 6.0e-6
     contact_threshold: float = 1.1e-5
     nnls_method: str = "bpp"
@@ -481,9 +485,9 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
     solver = SolverSpec(
         method=c.choice(so, "method", sop, "nnls_tikhonov", SOLVER_METHODS),
         regulariser=c.choice(so, "regulariser", sop, "identity", REGULARISERS),
-        tikhonov=c.number(so, "tikhonov", sop, 0.1, lo=0.0, hi=10.0),
+        tikhonov=_number_or_rule(c, so, "tikhonov", sop, 0.1, lo=0.0, hi=10.0),
         rcond=c.number(so, "rcond", sop, 1e-3, lo=0.0, lo_open=True, hi=1.0),
-        tsvd_rank=c.number(so, "tsvd_rank", sop, None, lo=1, integer=True),
+        tsvd_rank=_number_or_rule(c, so, "tsvd_rank", sop, None, lo=1, integer=True),
         noise=c.number(so, "noise", sop, 6.0e-6, lo=0.0, hi=1e-3),
         contact_threshold=c.number(so, "contact_threshold", sop, 1.1e-5, lo=0.0, hi=1e-3),
         nnls_method=c.choice(so, "nnls_method", sop, "bpp", ("bpp", "fista")),
@@ -534,6 +538,19 @@ def _check_patch(c: _Ctx, patch: PatchLayout, path: str) -> None:
             f"one of modules[{owner[i]}] (their electrodes of radius "
             f"{patch.sensor.taxel_radius * 1e3:g} mm overlap below {limit * 1e3:g} mm)",
         )
+
+
+def _number_or_rule(c: Any, d: dict[str, Any], key: str, path: str, default: Any, **kw: Any):
+    """A number as ``c.number`` checks it, or the name of a parameter rule (RULES)."""
+    v = d.get(key, default)
+    if isinstance(v, str):
+        if v not in PARAMETER_RULES:
+            raise c.err(
+                f"{path}.{key}",
+                f"unknown rule {v!r} (known: {', '.join(PARAMETER_RULES)}, or a number)",
+            )
+        return v
+    return c.number(d, key, path, default, **kw)
 
 
 def parse_layout(data: Any, source: str = "<memory>") -> Layout:

@@ -98,3 +98,46 @@ def test_a_bundle_whose_layout_file_changed_is_refused_without_being_told_the_la
         Reconstructor.from_bundle(tmp_path / "b" / first)
     layout.unlink()
     Reconstructor.from_bundle(tmp_path / "b" / second)
+
+
+def test_tikhonov_and_tsvd_parameters_by_a_rule(tmp_path):
+    """``tikhonov: discrepancy`` and ``tsvd_rank: discrepancy`` are chosen at build time on the
+    representative reading; checked by the principle's definition: the residual of the chosen
+    solution on that reading is the noise level σ·√K (Tikhonov), and the smallest rank whose
+    residual is at most that (TSVD)."""
+    import copy
+
+    import numpy as np
+    import pytest
+
+    from tactile_contact.build import build_patch, representative_reading
+    from tactile_contact.layout import LayoutError, parse_layout
+
+    doc = yaml.safe_load((ROOT / "config" / "hexagon_patch.yaml").read_text())
+    doc["patches"][0]["solver"].update(method="tikhonov", tikhonov="discrepancy", refine="none")
+    patch = parse_layout(doc).patches[0]
+    manifest, arrays = build_patch(patch)
+    p, c = manifest["params"], arrays["forward"]
+    assert p["tikhonov_rule"] == "discrepancy" and 0 < p["tikhonov_relative"] < 10
+    d = representative_reading(patch, c)
+    target = patch.solver.noise * np.sqrt(len(d))
+    x = arrays["inverse"].astype(np.float64) @ d
+    assert np.linalg.norm(c @ x - d) == pytest.approx(target, rel=1e-3)
+
+    tsvd = copy.deepcopy(doc)
+    tsvd["patches"][0]["solver"].update(method="tsvd", tikhonov=0.1, tsvd_rank="discrepancy")
+    patch = parse_layout(tsvd).patches[0]
+    manifest, arrays = build_patch(patch)
+    k = manifest["params"]["tsvd_rank"]
+    u, s, vt = np.linalg.svd(c, full_matrices=False)
+
+    def residual(rank):
+        x = vt[:rank].T @ ((u[:, :rank].T @ d) / s[:rank])
+        return np.linalg.norm(c @ x - d)
+
+    assert 1 < k < len(d) and residual(k) <= target < residual(k - 1)
+    assert manifest["params"]["tsvd_rule"] == "discrepancy"
+    bad = copy.deepcopy(doc)
+    bad["patches"][0]["solver"]["tikhonov"] = "magic"
+    with pytest.raises(LayoutError, match=r"solver\.tikhonov: unknown rule 'magic'"):
+        parse_layout(bad)
