@@ -120,20 +120,23 @@ def regularisation(patch: PatchLayout, c: NDArray, reg: NDArray | None) -> tuple
     ``discrepancy`` with the layout's ``noise``; tactile_contact.solvers.SvdInverse) applied to
     :func:`representative_reading`."""
     s = patch.solver
-    rules = isinstance(s.tikhonov, str) or isinstance(s.tsvd_rank, str)
-    d = representative_reading(patch, c) if rules else None
-    if isinstance(s.tikhonov, str):
+    # A rule runs only where its parameter is used (its SVD and reading cost about a second).
+    lam_rule = isinstance(s.tikhonov, str) and s.method in ("tikhonov", "nnls_tikhonov")
+    rank_rule = isinstance(s.tsvd_rank, str) and s.method == "tsvd"
+    d = representative_reading(patch, c) if lam_rule or rank_rule else None
+    if lam_rule:
         from tactile_contact.solvers import SvdInverse
 
         lam = SvdInverse(c, regulariser=reg).choose_lambda(s.tikhonov, d, noise=s.noise)
     else:
-        lam = s.tikhonov * float(np.linalg.norm(c, 2))
-    if isinstance(s.tsvd_rank, str):
+        lam = (s.tikhonov if not isinstance(s.tikhonov, str) else 0.0) * float(np.linalg.norm(c, 2))
+    if rank_rule:
         from tactile_contact.solvers import SvdInverse
 
         rank = SvdInverse(c).choose_rank(s.tsvd_rank, d, noise=s.noise)
     else:
-        rank = min(s.tsvd_rank or min(c.shape), *c.shape)
+        fixed = s.tsvd_rank if isinstance(s.tsvd_rank, int) else None
+        rank = min(fixed or min(c.shape), *c.shape)
     return float(lam), int(rank)
 
 
@@ -210,7 +213,7 @@ def build_patch(patch: PatchLayout) -> tuple[dict[str, Any], dict[str, NDArray[A
         "tikhonov_rule": s.tikhonov if isinstance(s.tikhonov, str) else None,
         "tikhonov": lam,
         "rcond": s.rcond,
-        "tsvd_rank": rank if s.tsvd_rank is not None else None,
+        "tsvd_rank": rank if s.method == "tsvd" else None,
         "tsvd_rule": s.tsvd_rank if isinstance(s.tsvd_rank, str) else None,
         "noise": s.noise,
         "contact_threshold": s.contact_threshold,

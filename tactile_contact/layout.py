@@ -146,7 +146,7 @@ class SolverSpec:
         tikhonov: λ relative to the largest singular value of C [-], or a rule that picks it
             at build time (``gcv``, ``lcurve``, ``discrepancy``; PARAMETER_RULES).
         rcond: relative singular-value cut-off of ``pinv`` [-].
-        tsvd_rank: singular values kept by ``tsvd`` (None: all of them), or a rule.
+        tsvd_rank: singular values kept by ``tsvd``, or a rule (default ``discrepancy``).
         noise: taxel compression noise [m], for the free solution's non-negativity test.
         contact_threshold: a frame is in contact when a valid taxel's |δ| exceeds it [m]. The
             default, 1.1e-5 m (≈ 1.05 count), ignores the ±1-count readings that a baseline
@@ -175,7 +175,7 @@ class SolverSpec:
     regulariser: str = "identity"
     tikhonov: float | str = 0.1
     rcond: float = 1.0e-3
-    tsvd_rank: int | str | None = None
+    tsvd_rank: int | str | None = "discrepancy"
     noise: float = 6.0e-6
     contact_threshold: float = 1.1e-5
     nnls_method: str = "bpp"
@@ -487,7 +487,7 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
         regulariser=c.choice(so, "regulariser", sop, "identity", REGULARISERS),
         tikhonov=_number_or_rule(c, so, "tikhonov", sop, 0.1, lo=0.0, hi=10.0),
         rcond=c.number(so, "rcond", sop, 1e-3, lo=0.0, lo_open=True, hi=1.0),
-        tsvd_rank=_number_or_rule(c, so, "tsvd_rank", sop, None, lo=1, integer=True),
+        tsvd_rank=_number_or_rule(c, so, "tsvd_rank", sop, "discrepancy", lo=1, integer=True),
         noise=c.number(so, "noise", sop, 6.0e-6, lo=0.0, hi=1e-3),
         contact_threshold=c.number(so, "contact_threshold", sop, 1.1e-5, lo=0.0, hi=1e-3),
         nnls_method=c.choice(so, "nnls_method", sop, "bpp", ("bpp", "fista")),
@@ -541,16 +541,22 @@ def _check_patch(c: _Ctx, patch: PatchLayout, path: str) -> None:
 
 
 def _number_or_rule(c: Any, d: dict[str, Any], key: str, path: str, default: Any, **kw: Any):
-    """A number as ``c.number`` checks it, or the name of a parameter rule (RULES)."""
-    v = d.get(key, default)
-    if isinstance(v, str):
-        if v not in PARAMETER_RULES:
-            raise c.err(
-                f"{path}.{key}",
-                f"unknown rule {v!r} (known: {', '.join(PARAMETER_RULES)}, or a number)",
-            )
+    """A number as ``c.number`` checks it, or the name of a parameter rule (PARAMETER_RULES);
+    ``all`` is None (for ``tsvd_rank``: no truncation)."""
+    v = d.get(key)
+    if v in PARAMETER_RULES:
         return v
-    return c.number(d, key, path, default, **kw)
+    if key == "tsvd_rank" and v == "all":
+        return None
+    try:
+        return c.number(d, key, path, default, **kw)
+    except LayoutError:
+        if isinstance(v, str):
+            known = ", ".join(PARAMETER_RULES + (("all",) if key == "tsvd_rank" else ()))
+            raise c.err(
+                f"{path}.{key}", f"unknown rule {v!r} (known: {known}, or a number)"
+            ) from None
+        raise
 
 
 def parse_layout(data: Any, source: str = "<memory>") -> Layout:
