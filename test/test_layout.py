@@ -105,6 +105,7 @@ def test_defaults_fill_missing_sections():
     ).patches[0]
     assert p.frame_id == "p" and p.elastomer.poisson == 0.5 and p.solver.method == "nnls_tikhonov"
     assert p.solver.tikhonov == 0.1 and p.solver.tsvd_rank == "discrepancy"
+    assert p.sensor.area == pytest.approx(np.pi * 4e-6)
 
 
 @pytest.mark.parametrize(
@@ -115,7 +116,6 @@ def test_regularisation_parameters_take_a_number_or_a_rule(key, value, parsed):
     doc = yaml.safe_load(HEXAGON.read_text())
     doc["patches"][0]["solver"][key] = value
     assert getattr(parse_layout(doc).patches[0].solver, key) == parsed
-    assert p.sensor.area == pytest.approx(np.pi * 4e-6)
 
 
 def _set(doc, path, value):
