@@ -14,7 +14,7 @@
 6. noise amplification: ‖C⁺‖₂ and Monte-Carlo spread of force and CoP per solver;
 7. float32 against float64 online products, alone and through the whole reconstruction;
 8. perturbation of E, h, ν in the model (truth fixed);
-9. the loss of net force in the under-determined problem (72 taxels, 568 cells) against the
+9. the loss of net force in the under-determined problem (72 taxels, 698 cells) against the
    contact size, per solver, and how the default (two-pass NNLS + Tikhonov) counters it.
 """
 
@@ -265,6 +265,7 @@ def noise_and_precision(pipes: dict[str, Pipeline], fm: ForwardModel) -> dict[st
     out: dict[str, Any] = {
         "kappa_taxels_to_cells": float(inv.condition_number),
         "null_space_dim": int(r.forward.shape[1] - r.forward.shape[0]),
+        "shape": [int(k) for k in r.forward.shape],
         "pinv_Pa_per_um": float(np.linalg.norm(inv.pinv_operator(1e-3), 2) * 1e-6),
         "tikhonov_Pa_per_um": float(np.linalg.norm(inv.tikhonov_operator(lam), 2) * 1e-6),
     }

@@ -183,11 +183,12 @@ def render(rep: dict[str, Any]) -> str:
         f"{u['kappa_mm_mpa']:.6f}.",
     ]
     n = rep["noise_precision"]
+    k, cells = n.get("shape", (72, 72 + n["null_space_dim"]))
     out += [
         "",
-        "## 6. Noise amplification (default patch: 72 taxels → 568 cells of 2 mm)",
+        f"## 6. Noise amplification (default patch: {k} taxels → {cells} cells of 2 mm)",
         "",
-        f"- κ of the 72 × 568 taxel matrix over its 72 singular values: "
+        f"- κ of the {k} × {cells} taxel matrix over its {k} singular values: "
         f"{n['kappa_taxels_to_cells']:.3g}; its null space has {n['null_space_dim']} "
         "dimensions (loads no inverse can see).",
         f"- ‖C⁺‖₂: pinv (rcond 1e-3) {n['pinv_Pa_per_um']:.0f} Pa per µm, Tikhonov "
