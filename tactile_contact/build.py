@@ -119,20 +119,20 @@ def regularisation(patch: PatchLayout, c: NDArray, reg: NDArray | None) -> tuple
     (λ relative to the largest singular value of C), or a rule (``gcv``, ``lcurve``,
     ``discrepancy`` with the layout's ``noise``; tactile_contact.solvers.SvdInverse) applied to
     :func:`representative_reading`."""
+    from tactile_contact.solvers import SvdInverse
+
     s = patch.solver
-    # A rule runs only where its parameter is used (its SVD and reading cost about a second).
+    # A rule runs only where its parameter is used (its SVD and reading cost about a second);
+    # a rule the method does not use leaves λ at 0 and every singular value.
     lam_rule = isinstance(s.tikhonov, str) and s.method in ("tikhonov", "nnls_tikhonov")
     rank_rule = isinstance(s.tsvd_rank, str) and s.method == "tsvd"
     d = representative_reading(patch, c) if lam_rule or rank_rule else None
     if lam_rule:
-        from tactile_contact.solvers import SvdInverse
-
         lam = SvdInverse(c, regulariser=reg).choose_lambda(s.tikhonov, d, noise=s.noise)
     else:
-        lam = (s.tikhonov if not isinstance(s.tikhonov, str) else 0.0) * float(np.linalg.norm(c, 2))
+        relative = 0.0 if isinstance(s.tikhonov, str) else s.tikhonov
+        lam = relative * float(np.linalg.norm(c, 2))
     if rank_rule:
-        from tactile_contact.solvers import SvdInverse
-
         rank = SvdInverse(c).choose_rank(s.tsvd_rank, d, noise=s.noise)
     else:
         fixed = s.tsvd_rank if isinstance(s.tsvd_rank, int) else None
