@@ -65,26 +65,25 @@ def forward_matrix(patch: PatchLayout, points: NDArray, grid: Grid) -> NDArray[n
     """(len(points), N) effective deflection per unit cell pressure [m/Pa] for the patch model."""
     from tactile_contact.elastic import boussinesq_matrix, love_matrix
 
-    e = patch.elastomer
+    e, h = patch.elastomer, patch.layer_thickness
     if patch.model.kind == "love":
-        return love_matrix(
-            points, grid.centers(), grid.half_sizes(), e.thickness, e.young, e.poisson
-        )
+        return love_matrix(points, grid.centers(), grid.half_sizes(), h, e.young, e.poisson)
     per_force = boussinesq_matrix(
-        points, grid.centers(), grid.cell_area, e.thickness, e.young, e.poisson, patch.model.psi
+        points, grid.centers(), grid.cell_area, h, e.young, e.poisson, patch.model.psi
     )
     return per_force * grid.cell_area  # a cell's force is p·A
 
 
 def taxel_matrix(patch: PatchLayout, grid: Grid) -> NDArray[np.float64]:
-    """(K, N) forward matrix C [m/Pa] at the taxels (mean over the electrode disc if asked)."""
+    """(K, N) forward matrix C [m/Pa] from cell pressures to taxel readings: the mean over each
+    taxel's footprint disc, times the taxel gain (:attr:`PatchLayout.footprint`)."""
     xy = patch.taxel_xy()
-    if not patch.model.taxel_average:
-        return forward_matrix(patch, xy, grid)
-    q, w = disc_quadrature(patch.sensor.taxel_radius, *TAXEL_QUADRATURE)
+    if patch.footprint == 0:
+        return patch.model.gain * forward_matrix(patch, xy, grid)
+    q, w = disc_quadrature(patch.footprint, *TAXEL_QUADRATURE)
     pts = (xy[:, None, :] + q[None, :, :]).reshape(-1, 2)
     c = forward_matrix(patch, pts, grid).reshape(len(xy), len(w), -1)
-    return np.einsum("kqn,q->kn", c, w)
+    return patch.model.gain * np.einsum("kqn,q->kn", c, w)
 
 
 #: The representative reading a rule picks λ or the TSVD rank for: a 12 mm sphere [m radius]
@@ -181,16 +180,16 @@ def build_patch(patch: PatchLayout) -> tuple[dict[str, Any], dict[str, NDArray[A
     if s.refine == "round":
         from tactile_contact.round_contact import round_tables
 
-        electrode = sen.taxel_radius if patch.model.taxel_average else 0.0
         tables = round_tables(
-            e.thickness,
+            patch.layer_thickness,
             e.young,
             e.poisson,
-            electrode,
+            patch.footprint,
             model=patch.model.kind,
             psi=patch.model.psi,
         )
-        arrays["round_table"], arrays["round_radii"] = tables.table, tables.radii
+        arrays["round_table"] = patch.model.gain * tables.table
+        arrays["round_radii"] = tables.radii
         round_step = tables.step
     params = {
         "thickness": e.thickness,
@@ -205,6 +204,9 @@ def build_patch(patch: PatchLayout) -> tuple[dict[str, Any], dict[str, NDArray[A
         "model": patch.model.kind,
         "psi": patch.model.psi,
         "taxel_average": patch.model.taxel_average,
+        "footprint_radius": patch.footprint,
+        "gain": patch.model.gain,
+        "layer_scale": patch.model.layer_scale,
         "traction_cell": tg.cell_size,
         "deflection_cell": dg.cell_size,
         "method": s.method,

@@ -129,11 +129,21 @@ class ModelSpec:
     """Elastic model: ``love`` (uniform pressure cells) or ``boussinesq`` (point forces with the
     Muscari self term, ``psi`` = ``exact`` for Ψ(x) = (0.2431x − 0.1814)/x or a constant such as
     0.25). ``taxel_average``: a taxel measures the mean deflection over its electrode disc
-    (True, default) rather than the value at its centre."""
+    (True, default) rather than the value at its centre.
+
+    The taxel's effective response, as ``tactile-contact-calibrate`` fits it to presses of
+    known force and position (defaults: the nominal sensor):
+    ``footprint_radius``: radius [m] of the disc a taxel averages the deflection over (None:
+    the electrode's, ``sensor.taxel_radius``; 0: the value at its centre); ``gain``: reading
+    per true compression [-]; ``layer_scale``: elastic layer thickness over the nominal
+    ``elastomer.thickness`` [-]."""
 
     kind: str = "love"
     psi: str | float = "exact"
     taxel_average: bool = True
+    footprint_radius: float | None = None
+    gain: float = 1.0
+    layer_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -250,6 +260,18 @@ class PatchLayout:
             for m in d["modules"]
         ]
         return d
+
+    @property
+    def footprint(self) -> float:
+        """Radius [m] of the disc each taxel averages the deflection over (0: a point)."""
+        if self.model.footprint_radius is not None:
+            return self.model.footprint_radius
+        return self.sensor.taxel_radius if self.model.taxel_average else 0.0
+
+    @property
+    def layer_thickness(self) -> float:
+        """Thickness [m] of the elastic layer in the model (nominal × ``layer_scale``)."""
+        return self.elastomer.thickness * self.model.layer_scale
 
     def layout_hash(self) -> str:
         """sha256 of the geometry (modules) — a bundle of another layout is *foreign*."""
@@ -423,7 +445,11 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
 
     e = c.mapping(d.get("elastomer"), f"{path}.elastomer", ("thickness", "young", "poisson"))
     ep = f"{path}.elastomer"
-    mod = c.mapping(d.get("model"), f"{path}.model", ("kind", "psi", "taxel_average"))
+    mod = c.mapping(
+        d.get("model"),
+        f"{path}.model",
+        ("kind", "psi", "taxel_average", "footprint_radius", "gain", "layer_scale"),
+    )
     kind = c.choice(mod, "kind", f"{path}.model", "love", MODELS)
     elast = Elastomer(
         thickness=c.number(e, "thickness", ep, 2.0e-3, lo=0.0, lo_open=True, hi=0.1),
@@ -444,7 +470,15 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
     tav = mod.get("taxel_average", True)
     if not isinstance(tav, bool):
         raise c.err(f"{path}.model.taxel_average", f"expected true or false, got {tav!r}")
-    model = ModelSpec(kind, psi if isinstance(psi, str) else float(psi), tav)
+    mp = f"{path}.model"
+    model = ModelSpec(
+        kind,
+        psi if isinstance(psi, str) else float(psi),
+        tav,
+        c.number(mod, "footprint_radius", mp, None, lo=0.0, hi=0.02),
+        c.number(mod, "gain", mp, 1.0, lo=0.05, hi=20.0),
+        c.number(mod, "layer_scale", mp, 1.0, lo=0.25, hi=4.0),
+    )
 
     s = c.mapping(
         d.get("sensor"),

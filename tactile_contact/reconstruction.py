@@ -172,6 +172,40 @@ class Reconstructor:
                 float(p["round_step"]),
                 np.asarray(bundle["round_table"], dtype=np.float64),
             )
+        #: Per-taxel compression noise [m] the detector and the fit assume unless a frame
+        #: passes its own: the layout's sensor model (the reading's rounding, one count/√6).
+        self.default_noise = np.full(self.n_taxels, self._count_sigma)
+        self.detector = self._detector() if self._round is not None else None
+
+    def _detector(self) -> Any:
+        """Matched-filter bank (:mod:`tactile_contact.detection`): round contacts of three
+        sizes on a DETECTION_PITCH lattice over the skin."""
+        from tactile_contact.detection import ContactDetector
+
+        tg = self.traction_grid
+        lo = self.taxel_xy.min(axis=0) - tg.cell_size
+        hi = self.taxel_xy.max(axis=0) + tg.cell_size
+        axes = [np.arange(lo[i], hi[i] + 1e-12, DETECTION_PITCH) for i in (0, 1)]
+        grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 2)
+        grid = grid[distance_to_points(grid, self.taxel_xy) <= DETECTION_REACH]
+        dist = np.hypot(
+            grid[:, None, 0] - self.taxel_xy[None, :, 0],
+            grid[:, None, 1] - self.taxel_xy[None, :, 1],
+        )
+        rows, centres = [], []
+        for fam, radius in DETECTION_PROFILES:
+            rows.append(self._round.response(fam, math.log(radius), dist))
+            centres.append(grid)
+        return ContactDetector(np.concatenate(rows), np.concatenate(centres), self.default_noise)
+
+    def _noise(self, noise: ArrayLike | None) -> NDArray[np.float64]:
+        """(K,) noise [m] for this frame: ``noise`` (scalar or (K,)) or the default."""
+        if noise is None:
+            return self.default_noise
+        s = np.broadcast_to(np.asarray(noise, dtype=np.float64), (self.n_taxels,))
+        if not np.all(np.isfinite(s) & (s > 0)):
+            raise ValueError(f"noise must be finite and > 0 m, shape () or ({self.n_taxels},)")
+        return s
 
     @classmethod
     def from_bundle(
@@ -209,6 +243,7 @@ class Reconstructor:
         *,
         want_traction: bool = True,
         want_deflection: bool = True,
+        noise: ArrayLike | None = None,
     ) -> ContactResult:
         """Reconstruct from capacitance changes ΔC [F] (K,), bundle taxel order.
 
@@ -216,14 +251,16 @@ class Reconstructor:
         −C0 (no compression explains them) and readings beyond ``full_scale`` (no 8-bit
         reading gives them: a count→farad gain or shift that differs between driver and
         bundle, or a unit mistake). ``ContactResult.taxels_used`` counts the taxels used.
-        ``want_*`` False skips that output.
+        ``want_*`` False skips that output. ``noise`` [m] (scalar or (K,)): each taxel's
+        compression noise (e.g. tracked online from frames without contact); default: the
+        layout's sensor model (``default_noise``).
         """
         dc, ok = self._check(delta_c, "delta_c", valid)
         p = self.params
         ok &= delta_c_in_range(dc, p["thickness"], p["epsilon_r"], p["area"])
         ok &= np.abs(dc) <= self.full_scale
         delta = np.where(ok, self.compression(np.where(ok, dc, 0.0)), 0.0)
-        res = self._solve(delta, ok, want_traction, want_deflection)
+        res = self._solve(delta, ok, want_traction, want_deflection, self._noise(noise))
         return dataclasses.replace(res, taxels_used=int(ok.sum()))
 
     def solve_deflection(
@@ -233,12 +270,20 @@ class Reconstructor:
         *,
         want_traction: bool = True,
         want_deflection: bool = True,
+        noise: ArrayLike | None = None,
     ) -> ContactResult:
         """Reconstruct from taxel compressions δ [m] (K,), bundle taxel order. NaN and
-        compressions of the whole layer or more (δ ≥ h) are excluded like ``valid`` False."""
+        compressions of the whole layer or more (δ ≥ h) are excluded like ``valid`` False.
+        ``noise`` as in :meth:`solve`; without it the readings are taken as unquantised
+        with unknown noise, and detection adds the scale-free test
+        (:mod:`tactile_contact.detection`): a frame whose best contact explains most of its
+        energy is a contact however small."""
         d, ok = self._check(delta, "delta", valid)
         ok &= compression_in_range(d, self.params["thickness"])
-        res = self._solve(np.where(ok, d, 0.0), ok, want_traction, want_deflection)
+        sigma = self._noise(noise)
+        res = self._solve(
+            np.where(ok, d, 0.0), ok, want_traction, want_deflection, sigma, noise is None
+        )
         return dataclasses.replace(res, taxels_used=int(ok.sum()))
 
     # ----------------------------------------------------------------------------------------
@@ -261,11 +306,43 @@ class Reconstructor:
             active,
         )
 
-    def _solve(self, delta: NDArray, ok: NDArray, want_t: bool, want_d: bool) -> ContactResult:
+    def _solve(
+        self,
+        delta: NDArray,
+        ok: NDArray,
+        want_t: bool,
+        want_d: bool,
+        sigma: NDArray,
+        scale_free: bool = False,
+    ) -> ContactResult:
         active = int(np.count_nonzero(ok & (np.abs(delta) > self.contact_threshold)))
-        if active == 0:
+        start = None
+        if self.detector is not None:
+            if not np.array_equal(sigma, self.detector.sigma):
+                self.detector.set_noise(sigma)
+            hit, k = self.detector.detect(delta, scale_free)
+            if not hit:
+                return self._zero(want_t, want_d, active)
+            start = self.detector.centres[k]
+        elif active == 0:
             return self._zero(want_t, want_d, 0)
         t0 = time.perf_counter()
+        success, iterations, path, refined = True, 0, self.method, False
+        fit = None
+        if start is not None and self.method == "nnls_tikhonov":
+            fit = self._round_direct(delta, ok, sigma, start)
+        if fit is not None:
+            q, path, refined = fit[0], "round", True
+        else:
+            q, success, iterations, path, refined, fit = self._grid(delta, ok)
+        return self._result(
+            q, fit, delta, ok, path, success, iterations, refined, t0, want_t, want_d, active
+        )
+
+    def _grid(self, delta: NDArray, ok: NDArray) -> tuple[NDArray, bool, int, str, bool, Any]:
+        """The grid solution (free, then NNLS where needed), then round contacts fitted
+        around it, kept if they explain the readings about as well (the path for contacts the
+        direct round fit does not explain)."""
         success, iterations, path, refined = True, 0, self.method, False
         if ok.all():
             q = (self._inverse @ delta.astype(np.float32)).astype(np.float64)
@@ -282,6 +359,59 @@ class Reconstructor:
             fit = self._round_fit(q, delta, ok)
             if fit is not None:
                 q, refined = fit[0], True
+        return q, success, iterations, path, refined, fit
+
+    def _round_direct(
+        self, delta: NDArray, ok: NDArray, sigma: NDArray, start: NDArray
+    ) -> tuple[NDArray, list[Any]] | None:
+        """Round contacts fitted straight to the readings from the detector's best place, or
+        None when they do not explain the readings to within noise and model error (χ² test):
+        then the grid path runs."""
+        from tactile_contact.contacts import ContactFitter
+
+        xy, d, s = self.taxel_xy[ok], delta[ok], sigma[ok]
+        fitter = ContactFitter(
+            self._round, self._count_sigma, self.contact_threshold, s, self.max_contacts
+        )
+        found = fitter.fit(xy, d, np.asarray(start, dtype=np.float64))
+        if found is None:
+            return None
+        fits = found[0]
+        pred = fitter.predicted(fits, xy)
+        chi2 = float(np.sum((pred - d) ** 2 / (s**2 + (ROUND_MODEL_ERROR * pred) ** 2)))
+        n = len(d)
+        if chi2 > n + 5.0 * math.sqrt(2.0 * n):
+            return None
+        return self._render(fits), fits
+
+    def _render(self, fits: list[Any]) -> NDArray[np.float64]:
+        """Cell-averaged pressure [Pa] of the round contacts ``fits`` on the traction grid."""
+        p = self.params
+        young, nu = float(p["young"]), float(p["poisson"])
+        cell = self.traction_grid.cell_size
+        out = np.zeros(len(self._centers))
+        for fit in fits:
+            near = np.hypot(*(self._centers - fit.center).T) <= fit.radius + cell
+            out[near] += fit.indenter(young, nu).pressure_on_cells(
+                self._centers[near], 0.5 * cell, fit.force, fit.center, young, nu
+            )
+        return out
+
+    def _result(
+        self,
+        q: NDArray,
+        fit: Any,
+        delta: NDArray,
+        ok: NDArray,
+        path: str,
+        success: bool,
+        iterations: int,
+        refined: bool,
+        t0: float,
+        want_t: bool,
+        want_d: bool,
+        active: int,
+    ) -> ContactResult:
         dt = time.perf_counter() - t0
         residual = float(np.linalg.norm((self.forward @ q - delta)[ok]))
         s = summarize(
@@ -511,21 +641,22 @@ class Reconstructor:
         r_grid = float(np.linalg.norm(self.forward[ok] @ q - d))
         if residual > FIT_RESIDUAL_FACTOR * r_grid + self.noise * math.sqrt(ok.sum()):
             return None
-        p = self.params
-        young, nu = float(p["young"]), float(p["poisson"])
-        cell = self.traction_grid.cell_size
-        out = np.zeros_like(q)
-        for fit in fits:
-            near = np.hypot(*(self._centers - fit.center).T) <= fit.radius + cell
-            out[near] += fit.indenter(young, nu).pressure_on_cells(
-                self._centers[near], 0.5 * cell, fit.force, fit.center, young, nu
-            )
-        return out, fits
+        return self._render(fits), fits
 
 
 #: Operators and solvers kept, one per set of valid taxels (and pass): the full set and a few
 #: sets with taxels out. Each prepared NNLS solver holds N × N float64 (2.6 MB at N = 568).
 SOLVER_CACHE_SIZE = 8
+
+#: Lattice pitch [m] of the detector's bank, and how far beyond a taxel it reaches [m].
+DETECTION_PITCH = 1.5e-3
+DETECTION_REACH = 4.0e-3
+#: Bank profiles (family index into round_contact.FAMILIES, contact radius [m]): a small
+#: punch, a mid sphere and a broad punch cover the responses a skin sees within a few %.
+DETECTION_PROFILES = ((0, 1.0e-3), (1, 2.5e-3), (0, 5.0e-3))
+#: Relative model error [-] the direct round fit's χ² test allows on top of the noise (the
+#: tables against a finer forward model: 1–4 %).
+ROUND_MODEL_ERROR = 0.05
 
 #: Contact radii [m] tried by the axisymmetric refinement.
 FIT_RADII = (0.75e-3, 1.0e-3, 1.5e-3, 2.0e-3, 3.0e-3, 4.0e-3, 6.0e-3)

@@ -5,13 +5,13 @@ axisymmetric and so is each taxel's electrode, so the compression a taxel reads 
 the distance r between its centre and the contact's: δ_i = F·R_s(|c − x_i|) for a contact of
 profile s (family and radius), force F [N] and centre c [m]. The responses R_s(r) [m/N] are
 computed offline (:func:`round_tables`) on a fine grid, far finer than any traction grid a
-solver can afford online, and the online fit (:func:`fit_round_contact`) is a search over centre
-and profile with the force in closed form: table look-ups (about 0.5 million on a 72-taxel
-patch) and a short Nelder–Mead polish per frame.
+solver can afford online, and the online fit (:func:`fit_round_contact`) is a compiled
+multi-start Levenberg–Marquardt least-squares fit over centre, profile and force (a few
+hundred microseconds per frame).
 
 Profiles: flat-punch-like p ∝ (a² − r²)^(−½) and Hertz-like p ∝ (a² − r²)^(½), each for
-contact radii ``radii``. Between tabulated radii the response is interpolated linearly in
-log a. No ROS import.
+log-spaced contact radii ``radii``. Between tabulated radii the response is interpolated
+linearly in log a. No ROS import.
 """
 
 from __future__ import annotations
@@ -21,7 +21,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.ndimage
-import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
 from tactile_contact.elastic import regular_grid_operator
@@ -30,8 +29,9 @@ from tactile_contact.indenters import FlatPunch, HertzSphere
 
 #: Families of the profile library, in table order.
 FAMILIES = ("punch", "hertz")
-#: Default contact radii [m]: 0.75–8 mm, about 11 % apart.
-DEFAULT_RADII = tuple(float(a) for a in np.geomspace(0.75e-3, 8e-3, 23))
+#: Default contact radii [m]: 0.4–9.6 mm, 5 % apart (log-spaced: the fit interpolates in
+#: log radius on a uniform grid). 23 radii 11 % apart left 2–5 % model error between them.
+DEFAULT_RADII = tuple(float(a) for a in np.geomspace(0.4e-3, 9.6e-3, 64))
 
 
 @dataclass(frozen=True)
@@ -47,6 +47,21 @@ class RoundTables:
     radii: NDArray[np.float64]
     step: float
     table: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        la = np.log(np.asarray(self.radii, dtype=np.float64))
+        if la.ndim != 1 or len(la) < 2 or not np.allclose(np.diff(la), la[1] - la[0], rtol=1e-6):
+            raise ValueError("round tables need at least two log-spaced radii (np.geomspace)")
+        if self.table.shape[:2] != (len(FAMILIES), len(la)) or self.table.shape[2] < 2:
+            raise ValueError(f"round table shape {self.table.shape} does not match the radii")
+        # The compiled fit reads the table row-major.
+        object.__setattr__(self, "table", np.ascontiguousarray(self.table, dtype=np.float64))
+
+    @property
+    def log_grid(self) -> tuple[float, float]:
+        """(log of the first radius, log spacing) of the radius axis."""
+        la = np.log(self.radii)
+        return float(la[0]), float((la[-1] - la[0]) / (len(la) - 1))
 
     @property
     def reach(self) -> float:
@@ -104,7 +119,46 @@ def round_tables(
     a = np.asarray(radii, dtype=np.float64)
     if a.ndim != 1 or len(a) < 2 or not np.all(np.diff(a) > 0) or not a[0] > 0:
         raise ValueError("radii must be at least two increasing positive radii [m]")
-    half = reach + taxel_radius + 2 * cell
+    if not np.allclose(np.diff(np.log(a)), math.log(a[1] / a[0]), rtol=1e-6):
+        raise ValueError("radii must be log-spaced (np.geomspace)")
+    profiles = [(fi, float(r)) for fi in range(len(FAMILIES)) for r in a]
+    table = radial_responses(
+        thickness,
+        young,
+        poisson,
+        [taxel_radius],
+        profiles,
+        reach=reach,
+        step=step,
+        cell=cell,
+        model=model,
+        psi=psi,
+    )
+    return RoundTables(a, float(step), table[:, 0].reshape(len(FAMILIES), len(a), -1))
+
+
+def radial_responses(
+    thickness: float,
+    young: float,
+    poisson: float,
+    footprints: ArrayLike,
+    profiles: list[tuple[int, float]],
+    *,
+    reach: float = 0.02,
+    step: float = 1.0e-4,
+    cell: float = 1.0e-4,
+    model: str = "love",
+    psi: str | float = "exact",
+) -> NDArray[np.float64]:
+    """(P, F, J) reading [m/N] at distance j·``step`` from unit-force round contacts
+    ``profiles`` ((family index, contact radius [m]) each) for taxels averaging over a disc
+    of each radius in ``footprints`` [m] (0: the centre value). One FFT field per profile
+    serves every footprint (:func:`round_tables`, which tabulates one footprint;
+    :mod:`tactile_contact.calibrate`, which fits it)."""
+    fp = np.asarray(footprints, dtype=np.float64).reshape(-1)
+    if not np.all(np.isfinite(fp) & (fp >= 0)):
+        raise ValueError("footprints must be finite radii >= 0 [m]")
+    half = reach + float(fp.max()) + 2 * cell
     n = 2 * math.ceil(half / cell) + 1  # odd: the contact centre is a cell centre
     op = regular_grid_operator(n, n, cell, cell, thickness, young, poisson, model, psi)
     # The Love operator takes cell pressures [Pa]; the point-force one, forces [N].
@@ -113,25 +167,28 @@ def round_tables(
     gx, gy = np.meshgrid(coords, coords, indexing="ij")
     centers = np.column_stack((gx.ravel(), gy.ravel()))
     hs = np.full(2, 0.5 * cell)
-    q, w = disc_quadrature(taxel_radius, 8, 24)
     dist = np.arange(round(reach / step) + 1) * step
-    px = (dist[:, None] + q[None, :, 0]) / cell + n // 2
-    py = (np.zeros_like(dist)[:, None] + q[None, :, 1]) / cell + n // 2
-    table = np.empty((len(FAMILIES), len(a), len(dist)))
-    for fi, fam in enumerate(FAMILIES):
-        for ai, radius in enumerate(a):
-            shape = (
-                FlatPunch(radius)
-                if fam == "punch"
-                else HertzSphere.with_contact_radius(radius, 1.0, young, poisson)
-            )
-            near = np.abs(centers).max(axis=1) <= radius + cell
-            p = np.zeros(len(centers))
-            p[near] = shape.pressure_on_cells(centers[near], hs, 1.0, (0.0, 0.0), young, poisson)
-            field = op.matvec(per_cell * p).reshape(n, n)
+    samples = []
+    for r in fp:
+        q, w = disc_quadrature(float(r), 8, 24)
+        px = (dist[:, None] + q[None, :, 0]) / cell + n // 2
+        py = (np.zeros_like(dist)[:, None] + q[None, :, 1]) / cell + n // 2
+        samples.append((px, py, w))
+    out = np.empty((len(profiles), len(fp), len(dist)))
+    for k, (fi, radius) in enumerate(profiles):
+        shape = (
+            FlatPunch(radius)
+            if FAMILIES[fi] == "punch"
+            else HertzSphere.with_contact_radius(radius, 1.0, young, poisson)
+        )
+        near = np.abs(centers).max(axis=1) <= radius + cell
+        p = np.zeros(len(centers))
+        p[near] = shape.pressure_on_cells(centers[near], hs, 1.0, (0.0, 0.0), young, poisson)
+        field = op.matvec(per_cell * p).reshape(n, n)
+        for m, (px, py, w) in enumerate(samples):
             vals = scipy.ndimage.map_coordinates(field, [px.ravel(), py.ravel()], order=1)
-            table[fi, ai] = vals.reshape(px.shape) @ w
-    return RoundTables(a, float(step), table)
+            out[k, m] = vals.reshape(px.shape) @ w
+    return out
 
 
 @dataclass(frozen=True)
@@ -158,176 +215,65 @@ def _lattice(center: NDArray, half: float, step: float) -> NDArray[np.float64]:
     return center + np.stack(np.meshgrid(g, g, indexing="ij"), axis=-1).reshape(-1, 2)
 
 
-def _scores(
-    rows_lo: NDArray, rows_hi: NDArray, w: NDArray, step: float, centres: NDArray, xy, d
-) -> tuple[NDArray, NDArray]:
-    """(cost, force) of every profile (rows interpolated with weights w, shape (P,)) at every
-    centre (L, 2): shapes (P, L). The force is the non-negative least-squares scale."""
-    r = np.hypot(centres[:, None, 0] - xy[None, :, 0], centres[:, None, 1] - xy[None, :, 1])
-    resp = (1.0 - w)[:, None, None] * _lookup(rows_lo, step, r)
-    resp += w[:, None, None] * _lookup(rows_hi, step, r)  # (P, L, K)
-    num = resp @ d
-    den = np.einsum("...k,...k->...", resp, resp)
-    force = np.maximum(num, 0.0) / np.where(den > 0, den, np.inf)
-    return float(d @ d) - 2 * force * num + force**2 * den, force
-
-
 def fit_round_contact(
     tables: RoundTables,
     taxel_xy: ArrayLike,
     delta: ArrayLike,
     start_xy: ArrayLike,
     *,
-    search: float = 3.0e-3,
-    near: float = 0.012,
-    sigma: float | None = None,
+    search: float = 1.0e-3,
+    near: float = 0.015,
+    sigma: float | ArrayLike | None = None,
     polish: bool = True,
 ) -> RoundFit | None:
-    """Fit one round contact to compressions ``delta`` [m] at ``taxel_xy`` (K, 2) [m].
+    """Least-squares fit of one round contact to compressions ``delta`` [m] at ``taxel_xy``
+    (K, 2) [m]: centre, profile (family and contact radius) and force.
 
-    Coarse to fine, vectorised: every tabulated profile on a 0.5 mm lattice within ``search``
-    [m] of ``start_xy`` (one (2,) centre or several (S, 2)); then, in the best family, 17
-    radii and a 0.125 mm lattice around the best; then trust-region least squares over
-    centre and log-radius. Taxels
-    farther than ``near`` [m] (plus the search) from the start are fitted as reading zero
-    (their residual counts; a contact's far field there is below 1 µm/N). The force is the
-    non-negative least-squares scale. None if no profile fits with F > 0.
-
-    With ``sigma`` [m] (the per-taxel measurement error: quantisation and baseline offsets)
-    the coarse best is followed by :func:`posterior_contact` instead of the polish: the
-    returned contact is the posterior mean around it, not a least-squares point. Without
-    ``polish`` the least-squares point is the best on the fine lattice (no trust-region step).
+    Every family and every fourth tabulated radius starts from the best centre of a 0.5 mm
+    lattice within ``search`` [m] of ``start_xy`` (one (2,) centre or several (S, 2)); a few
+    Levenberg–Marquardt steps each, then the best four run to convergence
+    (:func:`tactile_contact._round_kernels.fit_one`). The force is a fitted variable kept
+    ≥ 0. Taxels farther than ``near`` [m] from every start are left out of the fit (their
+    readings count in ``residual``). ``sigma`` [m], a scalar or one per taxel, weights the
+    readings (default: equal weights). ``polish`` False stops at fewer iterations (model
+    choice between one and several contacts). None if no profile fits with F > 0.
     """
+    from tactile_contact._round_kernels import fit_one
+
     xy = np.asarray(taxel_xy, dtype=np.float64)
     d = np.asarray(delta, dtype=np.float64)
     c0 = np.asarray(start_xy, dtype=np.float64).reshape(-1, 2)
-    local = distance_to_points(xy, c0) <= min(near, tables.reach) + search
+    local = distance_to_points(xy, c0) <= min(near, tables.reach)
     if not local.any():
         return None
-    xl, dl = xy[local], d[local]
-    rest = float(d[~local] @ d[~local])
-    n_f, n_a, _ = tables.table.shape
-    flat = tables.table.reshape(n_f * n_a, -1)
+    w = np.ones(len(d)) if sigma is None else np.broadcast_to(np.asarray(sigma, float), d.shape)
+    w2 = 1.0 / np.square(w[local])
     lattice = np.concatenate([_lattice(c, search, 5e-4) for c in c0])
-    cost, force = _scores(flat, flat, np.zeros(n_f * n_a), tables.step, lattice, xl, dl)
-    pi, li = np.unravel_index(int(np.argmin(cost)), cost.shape)
-    if force[pi, li] <= 0:
+    t0, dt = tables.log_grid
+    _cost, x, y, t, force, fam = fit_one(
+        tables.table,
+        t0,
+        dt,
+        tables.step,
+        np.ascontiguousarray(xy[local]),
+        np.ascontiguousarray(d[local]),
+        np.ascontiguousarray(w2),
+        lattice,
+        np.arange(0, len(tables.radii), FIT_RADIUS_STRIDE),
+        FIT_PRE_ITERATIONS,
+        FIT_KEEP,
+        FIT_ITERATIONS if polish else FIT_PRE_ITERATIONS * 2,
+    )
+    if not force > 0:
         return None
-    fam = int(pi) // n_a
-    la = np.log(tables.radii)
-    t_best, c_best = float(la[int(pi) % n_a]), lattice[li]
-    if sigma is not None:
-        # The posterior's own 0.25 mm lattice around the coarse best replaces the polish.
-        coarse = RoundFit(
-            float(force[pi, li]),
-            (float(c_best[0]), float(c_best[1])),
-            fam,
-            float(tables.radii[int(pi) % n_a]),
-            math.sqrt(max(float(cost[pi, li]), 0.0) + rest),
-        )
-        return posterior_contact(tables, xy, d, coarse, sigma)
-    # Into the basin: finer radii and a 0.125 mm lattice around the coarse best.
-    ts = np.clip(t_best + np.linspace(-2, 2, 17) * float(np.mean(np.diff(la))), la[0], la[-1])
-    k = np.clip(np.searchsorted(la, ts) - 1, 0, n_a - 2)
-    w = (ts - la[k]) / (la[k + 1] - la[k])
-    centres = _lattice(c_best, 5e-4, 1.25e-4)
-    cost, force = _scores(
-        tables.table[fam, k], tables.table[fam, k + 1], w, tables.step, centres, xl, dl
-    )
-    pi, li = np.unravel_index(int(np.argmin(cost)), cost.shape)
-    v0 = np.array([*centres[li], ts[pi]])
-    if not polish:
-        f = float(force[pi, li])
-        if f <= 0:
-            return None
-        res = math.sqrt(max(float(cost[pi, li]), 0.0) + rest)
-        return RoundFit(f, (float(v0[0]), float(v0[1])), fam, float(np.exp(v0[2])), res)
-
-    def residual(v: NDArray) -> NDArray[np.float64]:
-        """Variable projection: the force is eliminated in closed form."""
-        rv = tables.response(fam, v[2], np.hypot(*(xl - v[:2]).T))
-        nn = float(rv @ rv)
-        f = max(float(rv @ dl), 0.0) / nn if nn > 0 else 0.0
-        return f * rv - dl
-
-    # Then continuous (trust-region least squares): centre and size trade off along a
-    # shallow valley that no lattice spans cheaply.
-    scale = np.array([1e-3, 1e-3, 1.0])
-    opt = scipy.optimize.least_squares(
-        residual,
-        v0,
-        bounds=([-np.inf, -np.inf, la[0]], [np.inf, np.inf, la[-1]]),
-        x_scale=scale,
-        diff_step=1e-6 / scale,
-        xtol=1e-10,
-        max_nfev=50,
-    )
-    v = opt.x if 2 * opt.cost <= float(cost[pi, li]) else v0
-    rv = tables.response(fam, v[2], np.hypot(*(xl - v[:2]).T))
-    f = max(float(rv @ dl), 0.0) / float(rv @ rv)
-    if f <= 0:
-        return None
-    res = float(np.sum((f * rv - dl) ** 2)) + rest
-    return RoundFit(f, (float(v[0]), float(v[1])), fam, float(np.exp(v[2])), math.sqrt(res))
+    fit = RoundFit(float(force), (float(x), float(y)), int(fam), float(math.exp(t)), 0.0)
+    res = float(np.linalg.norm(tables.predict(fit, xy) - d))
+    return RoundFit(fit.force, fit.center, fit.family, fit.radius, res)
 
 
-def posterior_contact(
-    tables: RoundTables,
-    taxel_xy: ArrayLike,
-    delta: ArrayLike,
-    fit: RoundFit,
-    sigma: float,
-    *,
-    half: float = 1.5e-3,
-    step: float = 2.5e-4,
-    near: float = 0.015,
-) -> RoundFit:
-    """Posterior mean of one round contact around a first estimate ``fit``.
-
-    Why: with one strongly loaded taxel and neighbours that read a few counts, centre, size and
-    force trade off along a valley whose residual changes by less than the fixed per-taxel
-    errors (quantisation, the driver's baseline offsets: ±½ count each). The least-squares
-    point then rides those errors (tens of % in force, ~1 mm in centre, the same way every
-    frame of a static press); the mean over the valley does not.
-
-    Model: δ_i = F·R_s(|c − x_i|) + e_i with e_i ~ N(0, ``sigma``²) [m]; uniform prior over
-    the centre on a ``step`` lattice within ``half`` [m] of the fit's centre, over both
-    families and over the contact radius a (the tabulated radii weighted by a, since they are
-    log-spaced), F at its conditional optimum (profile likelihood). Returns the posterior means
-    of log F, of c and of log a; the family of largest posterior mass; and as ``residual`` the
-    least residual met on the lattice (or the fit's, if smaller) [m] over all taxels. Taxels
-    within ``near`` [m] of the fit's centre are fitted, the others as reading zero.
-    """
-    xy = np.asarray(taxel_xy, dtype=np.float64)
-    d = np.asarray(delta, dtype=np.float64)
-    if not (math.isfinite(sigma) and sigma > 0):
-        raise ValueError(f"sigma must be finite and > 0 [m], got {sigma!r}")
-    local = np.hypot(*(xy - np.asarray(fit.center)).T) <= near
-    rest = float(d[~local] @ d[~local])
-    n_f, n_a, _ = tables.table.shape
-    flat = tables.table.reshape(n_f * n_a, -1)
-    centres = _lattice(np.asarray(fit.center), half, step)
-    cost, force = _scores(
-        flat, flat, np.zeros(n_f * n_a), tables.step, centres, xy[local], d[local]
-    )
-    ok = force > 0
-    if not ok.any():
-        return fit
-    cost = np.where(ok, cost, np.inf)
-    w = np.exp(-(cost - cost.min()) / (2.0 * sigma**2))
-    # Uniform prior in the radius itself, not in its logarithm: the tabulated radii are
-    # log-spaced, and the many small ones all look alike under a 2 mm electrode (their
-    # volume would pull the force low).
-    w *= np.tile(tables.radii, n_f)[:, None]
-    w /= w.sum()
-    log_force = float(np.sum(w * np.log(np.where(ok, force, 1.0))))
-    by_profile = w.sum(axis=1).reshape(n_f, n_a)
-    center = w.sum(axis=0) @ centres
-    log_radius = float(by_profile.sum(axis=0) @ np.log(tables.radii))
-    return RoundFit(
-        math.exp(log_force),
-        (float(center[0]), float(center[1])),
-        int(np.argmax(by_profile.sum(axis=1))),
-        math.exp(log_radius),
-        min(fit.residual, math.sqrt(max(float(cost.min()), 0.0) + rest)),
-    )
+#: The fit starts from every FIT_RADIUS_STRIDE-th tabulated radius (16 of the default 64).
+FIT_RADIUS_STRIDE = 4
+#: Levenberg–Marquardt iterations from each start, then for the FIT_KEEP best to convergence.
+FIT_PRE_ITERATIONS = 3
+FIT_KEEP = 4
+FIT_ITERATIONS = 40
