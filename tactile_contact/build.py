@@ -86,6 +86,9 @@ def taxel_matrix(patch: PatchLayout, grid: Grid) -> NDArray[np.float64]:
     return patch.model.gain * np.einsum("kqn,q->kn", c, w)
 
 
+#: Distance step [m] of the round-contact tables (radial_responses' default).
+ROUND_STEP = 1.0e-4
+
 #: The representative reading a rule picks λ or the TSVD rank for: a 12 mm sphere [m radius]
 #: pressing this force [N] on the taxel nearest the centroid of the taxels (the centroid
 #: itself can fall where modules meet, between taxels 7.5 mm away), plus the layout's noise
@@ -178,17 +181,29 @@ def build_patch(patch: PatchLayout) -> tuple[dict[str, Any], dict[str, NDArray[A
     s, sen = patch.solver, patch.sensor
     round_step = None
     if s.refine == "round":
-        from tactile_contact.round_contact import round_tables
+        from tactile_contact.round_contact import (
+            DEFAULT_RADII,
+            FAMILIES,
+            RoundTables,
+            radial_responses,
+        )
 
-        tables = round_tables(
+        radii = np.asarray(DEFAULT_RADII)
+        # The taxel readings (footprint, gain) for the fit, and the point deflection for the
+        # output deflection grid, from one FFT field per profile.
+        resp = radial_responses(
             patch.layer_thickness,
             e.young,
             e.poisson,
-            patch.footprint,
+            [patch.footprint, 0.0],
+            [(f, float(a)) for f in range(len(FAMILIES)) for a in radii],
             model=patch.model.kind,
             psi=patch.model.psi,
         )
-        arrays["round_table"] = patch.model.gain * tables.table
+        shape = (len(FAMILIES), len(radii), -1)
+        tables = RoundTables(radii, ROUND_STEP, patch.model.gain * resp[:, 0].reshape(shape))
+        arrays["round_table"] = tables.table
+        arrays["round_point_table"] = resp[:, 1].reshape(shape)
         arrays["round_radii"] = tables.radii
         round_step = tables.step
     params = {

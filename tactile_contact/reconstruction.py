@@ -46,7 +46,6 @@ from numpy.typing import ArrayLike, NDArray
 from tactile_contact.bundle import Bundle, load_bundle
 from tactile_contact.grids import Grid, distance_to_points
 from tactile_contact.sensor import (
-    compression_in_range,
     delta_c_in_range,
     delta_c_to_compression,
     value_count_farad,
@@ -146,6 +145,7 @@ class Reconstructor:
         p = self.params
         self.method: str = str(p["method"])
         self.noise: float = float(p["noise"])
+        self._thickness = float(p["thickness"])
         self.contact_threshold: float = float(p["contact_threshold"])
         self.max_contacts: int = int(p.get("max_contacts", 3))
         # Per-cell noise of the free solution, for the "violates non-negativity" test.
@@ -172,6 +172,15 @@ class Reconstructor:
                 float(p["round_step"]),
                 np.asarray(bundle["round_table"], dtype=np.float64),
             )
+        self._point = None
+        if self._round is not None and "round_point_table" in bundle.arrays:
+            self._point = RoundTables(
+                self._round.radii,
+                self._round.step,
+                np.asarray(bundle["round_point_table"], dtype=np.float64),
+            )
+        self._dg_centers = self.deflection_grid.centers()
+        self._noise_cache: tuple[float, NDArray[np.float64]] | None = None
         #: Per-taxel compression noise [m] the detector and the fit assume unless a frame
         #: passes its own: the layout's sensor model (the reading's rounding, one count/√6).
         self.default_noise = np.full(self.n_taxels, self._count_sigma)
@@ -202,6 +211,11 @@ class Reconstructor:
         """(K,) noise [m] for this frame: ``noise`` (scalar or (K,)) or the default."""
         if noise is None:
             return self.default_noise
+        if isinstance(noise, float) and math.isfinite(noise) and noise > 0:
+            # A constant level passed every frame: one array, so the detector keeps its filters.
+            if self._noise_cache is None or self._noise_cache[0] != noise:
+                self._noise_cache = (noise, np.full(self.n_taxels, noise))
+            return self._noise_cache[1]
         s = np.broadcast_to(np.asarray(noise, dtype=np.float64), (self.n_taxels,))
         if not np.all(np.isfinite(s) & (s > 0)):
             raise ValueError(f"noise must be finite and > 0 m, shape () or ({self.n_taxels},)")
@@ -234,7 +248,7 @@ class Reconstructor:
         if ok.shape != (self.n_taxels,):
             raise ValueError(f"valid must have shape ({self.n_taxels},), got {ok.shape}")
         ok = ok & np.isfinite(v)
-        return np.where(ok, v, 0.0), ok
+        return (v if ok.all() else np.where(ok, v, 0.0)), ok
 
     def solve(
         self,
@@ -260,8 +274,8 @@ class Reconstructor:
         ok &= delta_c_in_range(dc, p["thickness"], p["epsilon_r"], p["area"])
         ok &= np.abs(dc) <= self.full_scale
         delta = np.where(ok, self.compression(np.where(ok, dc, 0.0)), 0.0)
-        res = self._solve(delta, ok, want_traction, want_deflection, self._noise(noise))
-        return dataclasses.replace(res, taxels_used=int(ok.sum()))
+        res = self._solve(delta, ok, want_traction, want_deflection, self._noise(noise), False)
+        return res
 
     def solve_deflection(
         self,
@@ -279,16 +293,18 @@ class Reconstructor:
         (:mod:`tactile_contact.detection`): a frame whose best contact explains most of its
         energy is a contact however small."""
         d, ok = self._check(delta, "delta", valid)
-        ok &= compression_in_range(d, self.params["thickness"])
+        ok &= d < self._thickness
         sigma = self._noise(noise)
         res = self._solve(
             np.where(ok, d, 0.0), ok, want_traction, want_deflection, sigma, noise is None
         )
-        return dataclasses.replace(res, taxels_used=int(ok.sum()))
+        return res
 
     # ----------------------------------------------------------------------------------------
 
-    def _zero(self, want_traction: bool, want_deflection: bool, active: int) -> ContactResult:
+    def _zero(
+        self, want_traction: bool, want_deflection: bool, active: int, used: int = 0
+    ) -> ContactResult:
         tg, dg = self.traction_grid, self.deflection_grid
         return ContactResult(
             np.zeros(tg.shape) if want_traction else None,
@@ -304,6 +320,7 @@ class Reconstructor:
             0.0,
             0.0,
             active,
+            taxels_used=used,
         )
 
     def _solve(
@@ -315,14 +332,27 @@ class Reconstructor:
         sigma: NDArray,
         scale_free: bool = False,
     ) -> ContactResult:
+        res = self._solve_used(delta, ok, want_t, want_d, sigma, scale_free)
+        used = int(np.count_nonzero(ok))
+        return res if res.taxels_used == used else dataclasses.replace(res, taxels_used=used)
+
+    def _solve_used(
+        self,
+        delta: NDArray,
+        ok: NDArray,
+        want_t: bool,
+        want_d: bool,
+        sigma: NDArray,
+        scale_free: bool,
+    ) -> ContactResult:
         active = int(np.count_nonzero(ok & (np.abs(delta) > self.contact_threshold)))
         start = None
         if self.detector is not None:
-            if not np.array_equal(sigma, self.detector.sigma):
+            if sigma is not self.detector.sigma and not np.array_equal(sigma, self.detector.sigma):
                 self.detector.set_noise(sigma)
             hit, k = self.detector.detect(delta, scale_free)
             if not hit:
-                return self._zero(want_t, want_d, active)
+                return self._zero(want_t, want_d, active, int(np.count_nonzero(ok)))
             start = self.detector.centres[k]
         elif active == 0:
             return self._zero(want_t, want_d, 0)
@@ -385,16 +415,41 @@ class Reconstructor:
         return self._render(fits), fits
 
     def _render(self, fits: list[Any]) -> NDArray[np.float64]:
-        """Cell-averaged pressure [Pa] of the round contacts ``fits`` on the traction grid."""
+        """Pressure [Pa] of the round contacts ``fits`` on the traction grid: the mean over
+        RENDER_SUB² points per cell, scaled so that each contact's cells carry its force (the
+        flat punch's integrable edge singularity makes point means uneven, not wrong in sum;
+        the parts beyond the skin mask are dropped)."""
         p = self.params
         young, nu = float(p["young"]), float(p["poisson"])
         cell = self.traction_grid.cell_size
         out = np.zeros(len(self._centers))
+        sub = (np.arange(RENDER_SUB) + 0.5) / RENDER_SUB - 0.5
+        off = np.stack(np.meshgrid(sub, sub, indexing="ij"), axis=-1).reshape(-1, 2) * cell
         for fit in fits:
-            near = np.hypot(*(self._centers - fit.center).T) <= fit.radius + cell
-            out[near] += fit.indenter(young, nu).pressure_on_cells(
-                self._centers[near], 0.5 * cell, fit.force, fit.center, young, nu
-            )
+            near = np.flatnonzero(np.hypot(*(self._centers - fit.center).T) <= fit.radius + cell)
+            pts = self._centers[near, None, :] + off[None] - np.asarray(fit.center)
+            r = np.minimum(np.hypot(pts[..., 0], pts[..., 1]), fit.radius * 1.000001)
+            ind = fit.indenter(young, nu)
+            inside = r < fit.radius
+            # The punch's p ∝ (a² − r²)^(−½) is infinite at r = a: sample it half a sub-cell in.
+            rr = np.minimum(r, fit.radius - 0.5 * cell / RENDER_SUB)
+            p_r = ind.pressure_at_radius(np.maximum(rr, 0.0), fit.force, young, nu)
+            vals = np.where(inside, p_r, 0.0)
+            cells = vals.mean(axis=1)
+            total = float(cells.sum()) * self.traction_grid.cell_area
+            if total > 0:
+                # The disc's share on these (skin) cells: the force beyond the mask is dropped.
+                share = float(inside.sum()) * (cell / RENDER_SUB) ** 2 / (math.pi * fit.radius**2)
+                cells *= fit.force * min(share, 1.0) / total
+            out[near] += cells
+        return out
+
+    def _deflection_of(self, fits: list[Any]) -> NDArray[np.float64]:
+        """(cells,) effective deflection [m] of the round contacts on the deflection grid's
+        cells, from the point-response tables (true deflection: no taxel gain)."""
+        out = np.zeros(len(self._dg_centers))
+        for fit in fits:
+            out += self._point.predict(fit, self._dg_centers)
         return out
 
     def _result(
@@ -441,10 +496,12 @@ class Reconstructor:
         deflection = None
         if want_d:
             dg = self.deflection_grid
-            deflection = dg.to_image(
-                np.asarray(self._deflection_op, np.float32) @ q.astype(np.float32)
-            )
-            deflection = deflection.astype(np.float64)
+            if fit is not None and self._point is not None:
+                deflection = dg.to_image(self._deflection_of(fit[1]))
+            else:
+                deflection = dg.to_image(
+                    np.asarray(self._deflection_op, np.float32) @ q.astype(np.float32)
+                ).astype(np.float64)
         return ContactResult(
             self.traction_grid.to_image(q) if want_t else None,
             deflection,
@@ -649,11 +706,13 @@ class Reconstructor:
 SOLVER_CACHE_SIZE = 8
 
 #: Lattice pitch [m] of the detector's bank, and how far beyond a taxel it reaches [m].
-DETECTION_PITCH = 1.5e-3
+DETECTION_PITCH = 2.0e-3
 DETECTION_REACH = 4.0e-3
 #: Bank profiles (family index into round_contact.FAMILIES, contact radius [m]): a small
 #: punch, a mid sphere and a broad punch cover the responses a skin sees within a few %.
 DETECTION_PROFILES = ((0, 1.0e-3), (1, 2.5e-3), (0, 5.0e-3))
+#: Sub-samples per cell edge when round contacts are rendered on the traction grid.
+RENDER_SUB = 4
 #: Relative model error [-] the direct round fit's χ² test allows on top of the noise (the
 #: tables against a finer forward model: 1–4 %).
 ROUND_MODEL_ERROR = 0.05

@@ -54,14 +54,16 @@ class RoundTables:
             raise ValueError("round tables need at least two log-spaced radii (np.geomspace)")
         if self.table.shape[:2] != (len(FAMILIES), len(la)) or self.table.shape[2] < 2:
             raise ValueError(f"round table shape {self.table.shape} does not match the radii")
+        object.__setattr__(
+            self, "_log_grid", (float(la[0]), float((la[-1] - la[0]) / (len(la) - 1)))
+        )
         # The compiled fit reads the table row-major.
         object.__setattr__(self, "table", np.ascontiguousarray(self.table, dtype=np.float64))
 
     @property
     def log_grid(self) -> tuple[float, float]:
         """(log of the first radius, log spacing) of the radius axis."""
-        la = np.log(self.radii)
-        return float(la[0]), float((la[-1] - la[0]) / (len(la) - 1))
+        return self._log_grid  # type: ignore[attr-defined]
 
     @property
     def reach(self) -> float:
@@ -70,10 +72,10 @@ class RoundTables:
 
     def response(self, family: int, log_radius: float, r: ArrayLike) -> NDArray[np.float64]:
         """R [m/N] at distances r [m] for a contact radius exp(log_radius) (interpolated)."""
-        la = np.log(self.radii)
-        t = float(np.clip(log_radius, la[0], la[-1]))
-        k = int(np.clip(np.searchsorted(la, t) - 1, 0, len(la) - 2))
-        w = (t - la[k]) / (la[k + 1] - la[k])
+        t0, dt = self.log_grid
+        u = min(max((log_radius - t0) / dt, 0.0), len(self.radii) - 1.0)
+        k = min(int(u), len(self.radii) - 2)
+        w = u - k
         lo, hi = _lookup(self.table[family, k : k + 2], self.step, r)
         return (1.0 - w) * lo + w * hi
 
@@ -229,9 +231,10 @@ def fit_round_contact(
     """Least-squares fit of one round contact to compressions ``delta`` [m] at ``taxel_xy``
     (K, 2) [m]: centre, profile (family and contact radius) and force.
 
-    Every family and every fourth tabulated radius starts from the best centre of a 0.5 mm
-    lattice within ``search`` [m] of ``start_xy`` (one (2,) centre or several (S, 2)); a few
-    Levenberg–Marquardt steps each, then the best four run to convergence
+    Every family and every FIT_RADIUS_STRIDE-th tabulated radius starts from the best centre
+    of a 0.5 mm lattice within ``search`` [m] of ``start_xy`` (one (2,) centre or several
+    (S, 2)); a few
+    Levenberg–Marquardt steps each, then the best FIT_KEEP run to convergence
     (:func:`tactile_contact._round_kernels.fit_one`). The force is a fitted variable kept
     ≥ 0. Taxels farther than ``near`` [m] from every start are left out of the fit (their
     readings count in ``residual``). ``sigma`` [m], a scalar or one per taxel, weights the
@@ -271,9 +274,9 @@ def fit_round_contact(
     return RoundFit(fit.force, fit.center, fit.family, fit.radius, res)
 
 
-#: The fit starts from every FIT_RADIUS_STRIDE-th tabulated radius (16 of the default 64).
-FIT_RADIUS_STRIDE = 4
+#: The fit starts from every FIT_RADIUS_STRIDE-th tabulated radius (11 of the default 64).
+FIT_RADIUS_STRIDE = 6
 #: Levenberg–Marquardt iterations from each start, then for the FIT_KEEP best to convergence.
 FIT_PRE_ITERATIONS = 3
-FIT_KEEP = 4
+FIT_KEEP = 3
 FIT_ITERATIONS = 40
