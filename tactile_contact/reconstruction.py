@@ -418,7 +418,7 @@ class Reconstructor:
         """Pressure [Pa] of the round contacts ``fits`` on the traction grid: the mean over
         RENDER_SUB² points per cell, scaled so that each contact's cells carry its force (the
         flat punch's integrable edge singularity makes point means uneven, not wrong in sum;
-        the parts beyond the skin mask are dropped)."""
+        a part beyond the skin mask lands on the cells at its edge)."""
         p = self.params
         young, nu = float(p["young"]), float(p["poisson"])
         cell = self.traction_grid.cell_size
@@ -438,9 +438,7 @@ class Reconstructor:
             cells = vals.mean(axis=1)
             total = float(cells.sum()) * self.traction_grid.cell_area
             if total > 0:
-                # The disc's share on these (skin) cells: the force beyond the mask is dropped.
-                share = float(inside.sum()) * (cell / RENDER_SUB) ** 2 / (math.pi * fit.radius**2)
-                cells *= fit.force * min(share, 1.0) / total
+                cells *= fit.force / total
             out[near] += cells
         return out
 

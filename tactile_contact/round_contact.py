@@ -231,7 +231,7 @@ def fit_round_contact(
     """Least-squares fit of one round contact to compressions ``delta`` [m] at ``taxel_xy``
     (K, 2) [m]: centre, profile (family and contact radius) and force.
 
-    Every family and every FIT_RADIUS_STRIDE-th tabulated radius starts from the best centre
+    Every family and FIT_START_RADII tabulated radii, evenly spread, start from the best centre
     of a 0.5 mm lattice within ``search`` [m] of ``start_xy`` (one (2,) centre or several
     (S, 2)); a few
     Levenberg–Marquardt steps each, then the best FIT_KEEP run to convergence
@@ -262,7 +262,7 @@ def fit_round_contact(
         np.ascontiguousarray(d[local]),
         np.ascontiguousarray(w2),
         lattice,
-        np.arange(0, len(tables.radii), FIT_RADIUS_STRIDE),
+        np.unique(np.linspace(0, len(tables.radii) - 1, FIT_START_RADII).round()).astype(np.int64),
         FIT_PRE_ITERATIONS,
         FIT_KEEP,
         FIT_ITERATIONS if polish else FIT_PRE_ITERATIONS * 2,
@@ -274,8 +274,8 @@ def fit_round_contact(
     return RoundFit(fit.force, fit.center, fit.family, fit.radius, res)
 
 
-#: The fit starts from every FIT_RADIUS_STRIDE-th tabulated radius (11 of the default 64).
-FIT_RADIUS_STRIDE = 6
+#: The fit starts from this many tabulated radii, evenly spread (every 6th of the default 64).
+FIT_START_RADII = 11
 #: Levenberg–Marquardt iterations from each start, then for the FIT_KEEP best to convergence.
 FIT_PRE_ITERATIONS = 3
 FIT_KEEP = 3
