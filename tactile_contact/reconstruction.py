@@ -466,7 +466,12 @@ class Reconstructor:
         active: int,
     ) -> ContactResult:
         dt = time.perf_counter() - t0
-        residual = float(np.linalg.norm((self.forward @ q - delta)[ok]))
+        if fit is not None:
+            # The contacts' own readings (tables), not their 2 mm-cell rendering's.
+            pred = sum(self._round.predict(f, self.taxel_xy[ok]) for f in fit[1])
+            residual = float(np.linalg.norm(pred - delta[ok]))
+        else:
+            residual = float(np.linalg.norm((self.forward @ q - delta)[ok]))
         s = summarize(
             q,
             self._centers,
