@@ -114,3 +114,58 @@ class ContactDetector:
             * math.erfc(self.threshold / math.sqrt(2.0))
             * (3600.0 * self.frame_rate)
         )
+
+
+class NoiseTracker:
+    """Each taxel's compression noise [m], tracked online from frames without contact.
+
+    An exponentially weighted mean of δ² over frames the reconstruction found no contact in
+    (the same frames the driver's baseline tracker follows), per taxel, never below ``floor``
+    (the reading's own rounding). Frames with any reading above SPIKE_SIGMA of the current
+    level are skipped as well: a touch too light to be detected must not teach the tracker
+    that the skin is noisy. ``sigma`` changes only every ``every`` frames, as one new array, so
+    a detector can tell by identity that nothing changed.
+
+    Args:
+        floor: (K,) or scalar lowest noise [m].
+        start: (K,) or scalar noise [m] before any frame is seen (default: ``floor``).
+        frames: time constant of the mean [frames] (500 = 10 s at 50 Hz).
+        every: frames between updates of ``sigma``.
+    """
+
+    SPIKE_SIGMA = 6.0
+
+    def __init__(
+        self,
+        floor: ArrayLike,
+        *,
+        start: ArrayLike | None = None,
+        frames: int = 500,
+        every: int = 50,
+    ) -> None:
+        f = np.asarray(floor, dtype=np.float64)
+        s0 = f if start is None else np.broadcast_to(np.asarray(start, np.float64), f.shape)
+        if not np.all(np.isfinite(f) & (f > 0) & np.isfinite(s0) & (s0 >= f)):
+            raise ValueError("noise floor must be finite and > 0 m, and start >= floor")
+        self.floor = f
+        self._var = np.square(s0).astype(np.float64)
+        self._alpha = 1.0 / max(int(frames), 1)
+        self._every = max(int(every), 1)
+        self._count = 0
+        self.frames_used = 0
+        self.sigma = np.sqrt(self._var)
+
+    def update(self, delta: ArrayLike, valid: ArrayLike, in_contact: bool) -> None:
+        """Learn from one frame's compressions ``delta`` [m] (invalid taxels ignored)."""
+        if in_contact:
+            return
+        d = np.asarray(delta, dtype=np.float64)
+        ok = np.asarray(valid, dtype=bool) & np.isfinite(d)
+        if np.any(np.abs(d[ok]) > self.SPIKE_SIGMA * self.sigma[ok]):
+            return
+        self._var[ok] += self._alpha * (np.square(d[ok]) - self._var[ok])
+        self.frames_used += 1
+        self._count += 1
+        if self._count >= self._every:
+            self._count = 0
+            self.sigma = np.maximum(np.sqrt(self._var), self.floor)

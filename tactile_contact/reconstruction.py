@@ -185,6 +185,7 @@ class Reconstructor:
         #: passes its own: the layout's sensor model (the reading's rounding, one count/√6).
         self.default_noise = np.full(self.n_taxels, self._count_sigma)
         self.detector = self._detector() if self._round is not None else None
+        self._sigma_seen: NDArray[np.float64] | None = None
 
     def _detector(self) -> Any:
         """Matched-filter bank (:mod:`tactile_contact.detection`): round contacts of three
@@ -348,8 +349,11 @@ class Reconstructor:
         active = int(np.count_nonzero(ok & (np.abs(delta) > self.contact_threshold)))
         start = None
         if self.detector is not None:
-            if sigma is not self.detector.sigma and not np.array_equal(sigma, self.detector.sigma):
-                self.detector.set_noise(sigma)
+            if sigma is not self._sigma_seen:
+                # A new noise array (a tracker updates it now and then): new filters if it differs.
+                if not np.array_equal(sigma, self.detector.sigma):
+                    self.detector.set_noise(sigma)
+                self._sigma_seen = sigma
             hit, k = self.detector.detect(delta, scale_free)
             if not hit:
                 return self._zero(want_t, want_d, active, int(np.count_nonzero(ok)))

@@ -35,6 +35,7 @@ from std_msgs.msg import Header
 from threadpoolctl import threadpool_limits
 from visualization_msgs.msg import MarkerArray
 
+from tactile_contact.detection import NoiseTracker
 from tactile_contact.msg import ContactState, GridGeometry, TaxelArray
 from tactile_contact.nodes import convert
 from tactile_contact.nodes.common import (
@@ -108,6 +109,9 @@ class PatchPipeline:
         self.name: str = recon.patch
         self.frame_id: str = recon.frame_id
         self.stats = PatchStats()
+        # Each taxel's noise, learnt from frames without contact; it sets the detection
+        # threshold (tactile_contact.detection). Floor: the bare rounding of one count.
+        self.noise = NoiseTracker(recon.default_noise / np.sqrt(2.0), start=recon.default_noise)
         self._ids = np.asarray(recon.taxel_ids, dtype=np.int64)
         self._perm_key: tuple[int, ...] | None = None
         self._perm: np.ndarray | None = None
@@ -185,7 +189,12 @@ class PatchPipeline:
             valid=valid,
             want_traction=want_traction,
             want_deflection=want_deflection,
+            noise=self.noise.sigma,
         )
+        if not result.in_contact:
+            self.noise.update(
+                self.recon.compression(np.where(valid, delta_c, 0.0)), valid, result.in_contact
+            )
         t2 = time.perf_counter()
         out_of_range = int(valid.sum()) - result.taxels_used
         if out_of_range:
@@ -292,6 +301,12 @@ class PatchPipeline:
             "bad_frames": s.bad_frames,
             "out_of_range_readings": s.out_of_range,
             "unpublishable": s.unpublishable,
+            "noise_median_um": float(np.median(self.noise.sigma) * 1e6),
+            "noise_max_um": float(np.max(self.noise.sigma) * 1e6),
+            "noise_frames": self.noise.frames_used,
+            "false_alarm_bound_per_hour": self.recon.detector.per_hour
+            if self.recon.detector is not None
+            else 0.0,
         }
         for stage, times in s.stage_s.items():
             if times:
