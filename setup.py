@@ -39,6 +39,8 @@ setup(
         "console_scripts": [
             "tactile-contact-build = tactile_contact.build:main",
             "tactile-contact = tactile_contact.cli:main",
+            "tactile-contact-calibrate = tactile_contact.calibrate:main",
+            "tactile-contact-presses = tactile_contact.calibrate:main_presses",
         ],
     },
 )

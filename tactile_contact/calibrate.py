@@ -445,5 +445,101 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def presses_from_bag(bag: Path, patch: PatchLayout, *, min_force: float = 0.05) -> dict:
+    """PRESSES arrays from a recorded calibration session: every ``<patch>/contact_truth``
+    message (the rig's force sensor and position, or the simulator's truth) with a force of
+    at least ``min_force`` [N], paired with the ``<patch>/taxels`` frame of the same stamp.
+
+    Errors (:class:`CalibrationError`) name the bag and what is missing.
+    """
+    from tactile_contact.bag import read_messages
+    from tactile_contact.sensor import delta_c_to_compression
+
+    topics = (f"{patch.name}/taxels", f"{patch.name}/contact_truth")
+    try:
+        msgs = read_messages(bag, [*topics, *(f"/{t}" for t in topics)])
+    except Exception as e:  # every unreadable bag is one clear error
+        raise CalibrationError(f"{bag}: cannot read the bag ({e})") from None
+    frames: dict[int, Any] = {}
+    truths = []
+    for topic, _, m in msgs:
+        stamp = int(m.header.stamp.sec) * 1_000_000_000 + int(m.header.stamp.nanosec)
+        if topic.lstrip("/") == topics[0]:
+            frames[stamp] = m
+        elif m.in_contact and m.total_force >= min_force:
+            truths.append((stamp, m))
+    for t, what in ((frames, "taxel frames"), (truths, "pressed contact_truth messages")):
+        if not t:
+            raise CalibrationError(f"{bag}: no {what} on {topics} (topics recorded?)")
+    ids = patch.taxel_ids()
+    s, h = patch.sensor, patch.elastomer.thickness
+    deflection, force, position, names, valid = [], [], [], [], []
+    for stamp, m in truths:
+        f = frames.get(stamp)
+        if f is None:
+            continue
+        where = {int(t): i for i, t in enumerate(f.taxel_ids)}
+        idx = np.array([where.get(int(t), -1) for t in ids])
+        dc = np.asarray(f.delta_c, dtype=np.float64)[np.maximum(idx, 0)]
+        ok = (idx >= 0) & np.isfinite(dc) & (np.asarray(f.status)[np.maximum(idx, 0)] == 0)
+        d = delta_c_to_compression(np.where(ok, dc, 0.0), h, s.epsilon_r, s.area)
+        deflection.append(np.where(ok, d, np.nan))
+        valid.append(ok)
+        force.append(float(m.total_force))
+        position.append((m.center_of_pressure.x, m.center_of_pressure.y))
+        names.append(_indenter_name(m, patch))
+    if len(force) == 0:
+        raise CalibrationError(f"{bag}: no contact_truth stamp matches a taxel frame's stamp")
+    out = {
+        "deflection": np.array(deflection),
+        "force": np.array(force),
+        "position": np.array(position),
+        "valid": np.array(valid),
+    }
+    if all(n is not None for n in names):
+        out["indenter"] = np.array(names)
+    return out
+
+
+def _indenter_name(msg: Any, patch: PatchLayout) -> str | None:
+    """ "hertz:R" / "punch:a" [mm] from a truth message's single contact, else None."""
+    if len(msg.contacts) != 1:
+        return None
+    c = msg.contacts[0]
+    if c.profile == "punch":
+        return f"punch:{c.radius * 1e3:.6g}"
+    if c.profile == "hertz":
+        from tactile_contact.indenters import effective_modulus
+
+        e = patch.elastomer
+        radius = 4.0 * effective_modulus(e.young, e.poisson) * c.radius**3 / (3.0 * c.force)
+        return f"hertz:{radius * 1e3:.6g}"
+    return None
+
+
+def main_presses(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="tactile-contact-presses",
+        description="Turn a recorded calibration session (a bag with <patch>/taxels and "
+        "<patch>/contact_truth) into PRESSES.npz for tactile-contact-calibrate.",
+    )
+    ap.add_argument("bag", type=Path, help="rosbag2 folder (MCAP or sqlite3)")
+    ap.add_argument("layout", type=Path, help="patch layout YAML")
+    ap.add_argument("-o", "--out", type=Path, required=True, help="PRESSES.npz to write")
+    ap.add_argument("--patch", help="patch (default: the only one)")
+    ap.add_argument("--min-force", type=float, default=0.05, help="least force kept [N]")
+    args = ap.parse_args(argv)
+    try:
+        lay = load_layout(args.layout)
+        patch = lay.patch(args.patch) if args.patch else lay.patches[0]
+        arrays = presses_from_bag(args.bag, patch, min_force=args.min_force)
+        np.savez(args.out, **arrays)
+    except (CalibrationError, LayoutError, KeyError, OSError) as e:
+        print(f"ERROR: {e}", file=sys.stderr)
+        return 1
+    print(f"{args.out}: {len(arrays['force'])} presses from {args.bag}")
+    return 0
+
+
 if __name__ == "__main__":
     sys.exit(main())

@@ -46,6 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 from tactile_contact.bundle import Bundle, load_bundle
 from tactile_contact.grids import Grid, distance_to_points
 from tactile_contact.sensor import (
+    EPSILON_0,
     delta_c_in_range,
     delta_c_to_compression,
     value_count_farad,
@@ -160,6 +161,13 @@ class Reconstructor:
         # few tenths of a count adds little. Not ``noise``: that one also covers model error
         # for the free solution's non-negativity test.
         lsb = value_count_farad(float(p["farad_per_count"]), int(p["shift"]))
+        self._lsb = float(lsb)
+        self._counts_per_metre_h = (
+            EPSILON_0
+            * float(p["epsilon_r"])
+            * float(p["area"])
+            / (float(p["thickness"]) * self._lsb)
+        )
         self._count_sigma = float(self.compression(np.array([lsb]))[0]) / math.sqrt(6.0)
         # The largest |ΔC| [F] a reading can carry: the 8-bit value's whole range.
         self.full_scale: float = 256.0 * lsb
@@ -238,6 +246,15 @@ class Reconstructor:
         p = self.params
         return delta_c_to_compression(delta_c, p["thickness"], p["epsilon_r"], p["area"])
 
+    def _on_count_lattice(self, delta: NDArray, ok: NDArray) -> bool:
+        """True when the compressions [m] are whole 8-bit counts through the sensor model
+        (to 1 % of a count) and at least one is not zero."""
+        d = delta[ok]
+        # ΔC = ε0·εr·A·δ / (h·(h − δ)) (sensor.compression_to_delta_c), in counts.
+        counts = self._counts_per_metre_h * d / (self._thickness - d)
+        frac = np.abs(counts - np.rint(counts))
+        return bool(np.any(np.abs(counts) > 0.5) and frac.max(initial=1.0) < 0.01)
+
     def _check(self, x: ArrayLike, name: str, valid: ArrayLike | None) -> tuple[NDArray, NDArray]:
         v = np.asarray(x, dtype=np.float64)
         if v.shape != (self.n_taxels,):
@@ -296,9 +313,12 @@ class Reconstructor:
         d, ok = self._check(delta, "delta", valid)
         ok &= d < self._thickness
         sigma = self._noise(noise)
-        res = self._solve(
-            np.where(ok, d, 0.0), ok, want_traction, want_deflection, sigma, noise is None
-        )
+        d = np.where(ok, d, 0.0)
+        # Without a noise level: readings on the 8-bit count lattice are treated as counts
+        # (posterior over the quantisation valley); others as precise, of unknown noise
+        # (scale-free detection, least-squares contact).
+        quantised = noise is not None or self._on_count_lattice(d, ok)
+        res = self._solve(d, ok, want_traction, want_deflection, sigma, not quantised, quantised)
         return res
 
     # ----------------------------------------------------------------------------------------
@@ -332,8 +352,9 @@ class Reconstructor:
         want_d: bool,
         sigma: NDArray,
         scale_free: bool = False,
+        quantised: bool = True,
     ) -> ContactResult:
-        res = self._solve_used(delta, ok, want_t, want_d, sigma, scale_free)
+        res = self._solve_used(delta, ok, want_t, want_d, sigma, scale_free, quantised)
         used = int(np.count_nonzero(ok))
         return res if res.taxels_used == used else dataclasses.replace(res, taxels_used=used)
 
@@ -345,6 +366,7 @@ class Reconstructor:
         want_d: bool,
         sigma: NDArray,
         scale_free: bool,
+        quantised: bool,
     ) -> ContactResult:
         active = int(np.count_nonzero(ok & (np.abs(delta) > self.contact_threshold)))
         start = None
@@ -364,7 +386,7 @@ class Reconstructor:
         success, iterations, path, refined = True, 0, self.method, False
         fit = None
         if start is not None and self.method == "nnls_tikhonov":
-            fit = self._round_direct(delta, ok, sigma, start)
+            fit = self._round_direct(delta, ok, sigma, start, quantised)
         if fit is not None:
             q, path, refined = fit[0], "round", True
         else:
@@ -396,7 +418,7 @@ class Reconstructor:
         return q, success, iterations, path, refined, fit
 
     def _round_direct(
-        self, delta: NDArray, ok: NDArray, sigma: NDArray, start: NDArray
+        self, delta: NDArray, ok: NDArray, sigma: NDArray, start: NDArray, posterior: bool
     ) -> tuple[NDArray, list[Any]] | None:
         """Round contacts fitted straight to the readings from the detector's best place, or
         None when they do not explain the readings to within noise and model error (χ² test):
@@ -412,8 +434,15 @@ class Reconstructor:
             return None
         fits = found[0]
         pred = fitter.predicted(fits, xy)
-        chi2 = float(np.sum((pred - d) ** 2 / (s**2 + (ROUND_MODEL_ERROR * pred) ** 2)))
         n = len(d)
+        if posterior and len(fits) == 1:
+            # Quantised readings: report the posterior mean over the size/centre/force valley
+            # (round_contact.posterior_contact) instead of the least-squares point.
+            from tactile_contact.round_contact import posterior_contact
+
+            fits = [posterior_contact(self._round, xy, d, fits[0], float(np.median(s)))]
+            pred = fitter.predicted(fits, xy)
+        chi2 = float(np.sum((pred - d) ** 2 / (s**2 + (ROUND_MODEL_ERROR * pred) ** 2)))
         if chi2 > n + 5.0 * math.sqrt(2.0 * n):
             return None
         return self._render(fits), fits

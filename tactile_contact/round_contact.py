@@ -274,9 +274,77 @@ def fit_round_contact(
     return RoundFit(fit.force, fit.center, fit.family, fit.radius, res)
 
 
-#: The fit starts from this many tabulated radii, evenly spread (every 6th of the default 64).
-FIT_START_RADII = 11
+#: The fit starts from this many tabulated radii, evenly spread (every 3rd of the default 64):
+#: a 12 mm punch read by three taxels under its face has a basin narrower than 10 % in radius.
+FIT_START_RADII = 22
 #: Levenberg–Marquardt iterations from each start, then for the FIT_KEEP best to convergence.
 FIT_PRE_ITERATIONS = 3
 FIT_KEEP = 3
 FIT_ITERATIONS = 40
+
+
+def posterior_contact(
+    tables: RoundTables,
+    taxel_xy: ArrayLike,
+    delta: ArrayLike,
+    fit: RoundFit,
+    sigma: float,
+    *,
+    half: float = 1.0e-3,
+    step: float = 2.5e-4,
+    near: float = 0.015,
+    radius_stride: int = 2,
+) -> RoundFit:
+    """Posterior mean of one round contact around the least-squares ``fit``.
+
+    Why: when the readings are coarse against the contact's signal (8-bit counts: one count is
+    ≈ 10 µm), centre, size and force trade off along a valley whose residual changes by less
+    than the rounding errors, and the least-squares point rides those errors (biasing the force
+    by 10–15 % the same way every frame of a static press); the mean over the valley does not.
+    With precise readings the posterior collapses onto the least-squares point.
+
+    Model: δ_i = F·R_s(|c − x_i|) + e_i, e_i ~ N(0, ``sigma``²) [m]; uniform prior over the
+    centre on a ``step`` lattice within ``half`` [m] of the fit's, over both families and over
+    the contact radius (the log-spaced tabulated radii weighted by a); F at its conditional
+    optimum. Returns the posterior means of log F, c and log a and the family of most mass;
+    ``residual`` stays the fit's. Taxels within ``near`` [m] of the fit are used.
+    """
+    from tactile_contact._round_kernels import coarse
+
+    if not (math.isfinite(sigma) and sigma > 0):
+        raise ValueError(f"sigma must be finite and > 0 [m], got {sigma!r}")
+    xy = np.asarray(taxel_xy, dtype=np.float64)
+    d = np.asarray(delta, dtype=np.float64)
+    local = np.hypot(*(xy - np.asarray(fit.center)).T) <= near
+    centres = _lattice(np.asarray(fit.center), half, step)
+    t0, dt = tables.log_grid
+    w2 = np.full(int(local.sum()), 1.0 / sigma**2)
+    cost, force = coarse(
+        tables.table,
+        t0,
+        dt,
+        tables.step,
+        np.ascontiguousarray(xy[local]),
+        np.ascontiguousarray(d[local]),
+        w2,
+        centres,
+        ri := np.arange(0, len(tables.radii), radius_stride, dtype=np.int64),
+    )  # (F, A, L), cost already divided by σ²
+    ok = force > 0
+    if not ok.any():
+        return fit
+    cost = np.where(ok, cost, np.inf)
+    radii = tables.radii[ri]
+    w = np.exp(-0.5 * (cost - cost.min())) * radii[None, :, None]
+    w /= w.sum()
+    log_force = float(np.sum(w * np.log(np.where(ok, force, 1.0))))
+    center = w.sum(axis=(0, 1)) @ centres
+    log_radius = float(w.sum(axis=(0, 2)) @ np.log(radii))
+    family = int(np.argmax(w.sum(axis=(1, 2))))
+    return RoundFit(
+        math.exp(log_force),
+        (float(center[0]), float(center[1])),
+        family,
+        math.exp(log_radius),
+        fit.residual,
+    )

@@ -1,0 +1,150 @@
+"""tactile-contact-calibrate: the fitted taxel response against presses simulated with a
+different one (tactile_contact.forward, independent of the round-contact tables), the bundle
+it writes, and its errors on bad files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tactile_contact.calibrate import INDENTERS, main, main_presses
+from tactile_contact.forward import ForwardModel
+from tactile_contact.layout import load_layout
+from tactile_contact.reconstruction import Reconstructor
+
+ROOT = Path(__file__).resolve().parents[1]
+LAYOUT = ROOT / "config" / "hexagon_patch.yaml"
+# The "real skin": point-valued taxels (no electrode averaging), a layer 10 % thicker than
+# the datasheet and a gain 10 % low: every one of them biases the nominal model.
+TRUE_SCALE, TRUE_GAIN = 1.1, 0.9
+
+
+@pytest.fixture(scope="module")
+def skin():
+    patch = load_layout(LAYOUT).patches[0]
+    xy = patch.taxel_xy()
+    fm = ForwardModel(xy, 2e-3 * TRUE_SCALE, 2.1e5, 0.5, fine_cell=2.5e-4, taxel_radius=0.0)
+    return patch, xy, fm
+
+
+def _presses(fm, xy, n, seed, noise=0.01):
+    rng = np.random.default_rng(seed)
+    names = list(INDENTERS)
+    out: dict[str, list] = {"deflection": [], "force": [], "position": [], "indenter": []}
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    while len(out["force"]) < n:
+        c = rng.uniform(lo, hi)
+        if np.min(np.hypot(*(xy - c).T)) > 4e-3:
+            continue
+        name, f = names[rng.integers(len(names))], float(rng.uniform(0.5, 3.0))
+        d = TRUE_GAIN * fm.compression(INDENTERS[name], f, c)
+        out["deflection"].append(d + rng.normal(0, noise * np.abs(d).max(), d.shape))
+        out["force"].append(f)
+        out["position"].append(c)
+        out["indenter"].append(name)
+    return {k: np.array(v) for k, v in out.items()}
+
+
+@pytest.fixture(scope="module")
+def calibrated(skin, tmp_path_factory):
+    _, xy, fm = skin
+    tmp = tmp_path_factory.mktemp("cal")
+    np.savez(tmp / "presses.npz", **_presses(fm, xy, 24, seed=3))
+    assert main([str(LAYOUT), str(tmp / "presses.npz"), "-o", str(tmp / "b"), "--json"]) == 0
+    return tmp / "b"
+
+
+def test_fit_recovers_the_simulated_response(calibrated, capsys):
+    cal = Reconstructor.from_bundle(calibrated / "hexagon").bundle.manifest["calibration"]
+    assert cal["footprint_radius"] <= 0.3e-3
+    assert cal["layer_scale"] == pytest.approx(TRUE_SCALE, abs=0.04)
+    assert cal["gain"] == pytest.approx(TRUE_GAIN, rel=0.06)
+    assert cal["relative_residual"] < 0.5 * cal["nominal_relative_residual"]
+
+
+def test_calibrated_bundle_gets_the_force_at_other_places(calibrated, skin):
+    # Presses at other random places than the calibration's; median force error ≤ 5 %,
+    # where the nominal bundle is biased by the response it assumes.
+    _, xy, fm = skin
+    test = _presses(fm, xy, 12, seed=99)
+    recon = Reconstructor.from_bundle(calibrated / "hexagon")
+    errors, cop = [], []
+    for d, f, c in zip(test["deflection"], test["force"], test["position"], strict=True):
+        res = recon.solve_deflection(d)
+        errors.append(abs(res.total_force / f - 1) if res.in_contact else 1.0)
+        cop.append(np.hypot(*(np.asarray(res.cop) - c)))
+    assert np.median(errors) <= 0.05
+    assert np.median(cop) <= 0.3e-3
+
+
+def test_cli_prints_the_fit(tmp_path, skin, capsys):
+    _, xy, fm = skin
+    np.savez(tmp_path / "p.npz", **_presses(fm, xy, 8, seed=5))
+    assert main([str(LAYOUT), str(tmp_path / "p.npz"), "-o", str(tmp_path / "b"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert {"footprint_radius", "gain", "layer_scale", "relative_residual"} <= set(out)
+    assert (tmp_path / "b" / "hexagon").is_dir()
+    assert (tmp_path / "b" / "hexagon_patch.calibrated.yaml").is_file()
+
+
+def _good(n=10, k=72):
+    rng = np.random.default_rng(0)
+    return {
+        "deflection": rng.normal(0, 5e-6, (n, k)),
+        "force": np.full(n, 1.0),
+        "position": rng.uniform(0, 0.02, (n, 2)),
+    }
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda g: g.pop("force"), "missing key 'force'"),
+        (lambda g: g.update(deflection=g["deflection"][:, :70]), "must have shape"),
+        (lambda g: g.update(position=g["position"] * 1e3), "millimetres given"),
+        (lambda g: g.update(deflection=g["deflection"] * 1e3), "micrometres given"),
+        (lambda g: g.update(force=g["force"] * 1e3), "millinewtons given"),
+        (lambda g: g["force"].__setitem__(2, np.nan), "NaN"),
+        (lambda g: g.update({k: v[:3] for k, v in g.items()}), "at least"),
+        (lambda g: g.update(indenter=np.array(["golf ball"] * 10)), "unknown indenter"),
+        (lambda g: g.update(deflection=np.full((10, 72), np.nan)), "no finite reading"),
+    ],
+)
+def test_bad_presses_files_get_a_clear_error(tmp_path, capsys, change, message):
+    g = _good()
+    change(g)
+    path = tmp_path / "bad.npz"
+    np.savez(path, **g)
+    assert main([str(LAYOUT), str(path), "-o", str(tmp_path / "b")]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("ERROR: ") and str(path) in err and message in err
+    assert not (tmp_path / "b" / "hexagon").exists()
+
+
+def test_not_an_npz_and_missing_file(tmp_path, capsys):
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"not a zip")
+    assert main([str(LAYOUT), str(junk), "-o", str(tmp_path / "b")]) == 1
+    assert "not a readable .npz" in capsys.readouterr().err
+    assert main([str(LAYOUT), str(tmp_path / "none.npz"), "-o", str(tmp_path / "b")]) == 1
+    assert "no such file" in capsys.readouterr().err
+
+
+def test_presses_from_the_shipped_bag(tmp_path):
+    out = tmp_path / "session.npz"
+    bag = ROOT / "test" / "data" / "hexagon_session"
+    assert main_presses([str(bag), str(LAYOUT), "-o", str(out)]) == 0
+    z = np.load(out)
+    n = len(z["force"])
+    assert n > 10 and z["deflection"].shape == (n, 72) and z["position"].shape == (n, 2)
+    assert np.all(z["force"] > 0) and z["indenter"].shape == (n,)
+    # The file is what the calibrate command takes.
+    assert main([str(LAYOUT), str(out), "-o", str(tmp_path / "b")]) == 0
+
+
+def test_presses_from_a_bag_without_truth(tmp_path, capsys):
+    assert main_presses([str(tmp_path / "nothing"), str(LAYOUT), "-o", str(tmp_path / "x")]) == 1
+    assert "ERROR: " in capsys.readouterr().err
