@@ -122,7 +122,6 @@ def stats(rows) -> str:
 NO = {"refine": "none"}
 VARIANTS = {
     "default: round-contact posterior (refine: round)": {},
-    "2-pass NNLS λ 0.1 + axisymmetric refinement": {"solver": {"refine": "axisymmetric"}},
     "2-pass NNLS λ 0.1, no refinement": {"solver": NO},
     "2-pass NNLS λ 0.01, no refinement": {"solver": {"tikhonov": 0.01, **NO}},
     "2-pass NNLS λ 0.001, no refinement": {"solver": {"tikhonov": 0.001, **NO}},

@@ -98,12 +98,6 @@ CONFIGS = [
         "nnls", "NNLS, 1 pass", "solver", {"solver": {"tikhonov": 0.0, "refine": "none"}}, passes=1
     ),
     Config("nnls+tikh", "NNLS+Tikhonov λ 0.1, 1 pass", "solver", NONE, passes=1),
-    Config(
-        "refine",
-        "default + axisymmetric refinement (2 mm cells, lattice)",
-        "solver",
-        {"solver": {"refine": "axisymmetric"}},
-    ),
     Config("grid only", "2-pass NNLS+Tikhonov, no round fit (former default)", "solver", NONE),
     Config("f64", "default, float64 products", "dtype", dtype="float64"),
     Config("pinv f64", "pinv, float64 products", "dtype", PINV, dtype="float64"),
@@ -330,9 +324,7 @@ def describe(cfg: Config, recon: Reconstructor) -> dict[str, Any]:
     }[p["method"]]
     if cfg.passes == 1:
         solver = "NNLS" if p["tikhonov"] == 0 else "NNLS+Tikhonov"
-    if p.get("refine") == "axisymmetric":
-        solver += " + refine"
-    elif p.get("refine") == "round":
+    if p.get("refine") == "round":
         solver += " + round fit"
     return {
         "key": cfg.key,

@@ -158,23 +158,22 @@ class SolverSpec:
         rcond: relative singular-value cut-off of ``pinv`` [-].
         tsvd_rank: singular values kept by ``tsvd``, or a rule (default ``discrepancy``).
         noise: taxel compression noise [m], for the free solution's non-negativity test.
-        contact_threshold: a frame is in contact when a valid taxel's |δ| exceeds it [m]. The
-            default, 1.1e-5 m (≈ 1.05 count), ignores the ±1-count readings that a baseline
-            (a mean of quantised samples) plus noise gives an idle skin, so idle patches cost
-            no solve.
+        contact_threshold: compression [m] above which a taxel counts as active (reported as
+            ``taxels_active``; a seed of a separate contact above 2.5×). With ``refine: round``
+            contact is detected against the noise (tactile_contact.detection); for the grid-only
+            methods a frame is in contact when a valid taxel's |δ| exceeds it. The default,
+            1.1e-5 m (≈ 1.05 count), ignores the ±1-count readings of an idle skin.
         nnls_method: ``bpp`` (block principal pivoting) or ``fista``.
         support_radius: the second NNLS pass keeps cells within this distance of the first
             pass's strong cells [m].
         seed_fraction: first-pass cells at or above this fraction of its peak seed the support.
         area_rel_threshold: a cell is in contact above this fraction of the peak pressure [-].
         area_min_pressure: ... and above this pressure [Pa].
-        refine: ``round`` (default): on every contact frame, fit one round contact through
-            radial responses tabulated offline on a 0.1 mm grid (tactile_contact.round_contact),
-            report its posterior mean (per-taxel error: one count / √6) and keep it when it
-            explains the data about as well as the grid solution; ``none``: keep the two-pass
-            NNLS field (≈ 3× cheaper per contact frame, far worse force);
-            ``axisymmetric``: the older fit on the 2 mm traction cells after NNLS (fragile
-            with the driver's baseline offsets: docs/reconstruction.md).
+        refine: ``round`` (default): on every contact frame, fit round contacts straight to
+            the readings through radial responses tabulated offline on a 0.1 mm grid
+            (tactile_contact.round_contact): least squares, or the posterior mean for
+            quantised readings; the grid solution only when they do not explain the readings;
+            ``none``: the grid solution always (far worse force).
         max_contacts: ``refine: round`` fits up to this many separate round contacts (one per
             taxel that reads most within 8 mm), kept over the single contact only when they
             explain the readings better than extra parameters fitted to noise would; 1 fits
@@ -531,7 +530,7 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
             so, "area_rel_threshold", sop, 0.1, lo=0.0, hi=1.0, hi_open=True
         ),
         area_min_pressure=c.number(so, "area_min_pressure", sop, 100.0, lo=0.0),
-        refine=c.choice(so, "refine", sop, "round", ("round", "axisymmetric", "none")),
+        refine=c.choice(so, "refine", sop, "round", ("round", "none")),
         max_contacts=c.number(so, "max_contacts", sop, 3, lo=1, hi=8, integer=True),
     )
     patch = PatchLayout(str(name), frame, modules, elast, sensor, grid, model, solver)

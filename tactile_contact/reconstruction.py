@@ -1,31 +1,30 @@
-"""Online reconstruction of one patch: taxel ΔC or compression δ → pressure, deflection, summary.
+"""Online reconstruction of one patch: taxel ΔC or compression δ → contacts, pressure, deflection.
 
 :class:`Reconstructor` is loaded from a matrix bundle (built offline by
-:mod:`tactile_contact.build`) and does per frame only what the scene needs:
+:mod:`tactile_contact.build`, or calibrated by :mod:`tactile_contact.calibrate`) and does per
+frame only what the scene needs:
 
 1. ΔC [F] → δ [m] per taxel (:func:`tactile_contact.sensor.delta_c_to_compression`).
-2. *Contact test*: no valid taxel with |δ| above ``contact_threshold`` → a zero result, no
-   solve.
-   |δ|, not δ > 0: a small contact between taxels makes every nearby taxel read negative.
-3. *Free solution*: q = C⁺_λ·δ with the precomputed regularised inverse (float32 product).
-   If no cell is below −3 σ (σ = the cell's noise from the measurement noise through C⁺_λ)
-   and its net force is positive, it is the answer (path ``"free"``).
-4. Otherwise the *constrained solve* (path ``"nnls"``): non-negative Tikhonov least squares,
-   twice — over the whole grid, then restricted to cells within ``support_radius`` of the cells
-   carrying at least ``seed_fraction`` of the first pass's peak. The second pass removes the
-   broad, nearly invisible pressure that a ν = 0.5 layer admits (its response to a uniform
-   load vanishes) and that otherwise inflates the net force (docs/reconstruction.md).
-   With ``refine: axisymmetric`` (not the default) a single round contact (Hertz-like or
-   punch-like profile, radius and centre searched near the NNLS solution) replaces the NNLS
-   field when it explains the data about as well (``ContactResult.refined``).
-   With ``refine: round`` (the default) round contacts are fitted on every contact frame
-   through radial responses tabulated offline on a 0.1 mm grid: one, or up to
-   ``max_contacts`` separate ones (:mod:`tactile_contact.contacts`,
-   :mod:`tactile_contact.round_contact`); each is reported by its posterior mean, and the
-   summary takes the fits' own force, centre and disc area.
-5. Summary (total force, CoP, area, peak) and, when wanted, the deflection grid = G·q.
+2. *Detection* (:mod:`tactile_contact.detection`): a bank of matched filters against each
+   taxel's noise (passed in, e.g. tracked online by the node, or the layout's sensor model)
+   with a stated false-alarm rate. No contact → a zero result, no solve. Negative readings
+   are signal: a small contact between taxels makes every nearby taxel read negative.
+3. *Round contacts* (``refine: round``, the default): one, or up to ``max_contacts`` separate
+   ones, fitted straight to the readings through radial responses tabulated offline
+   (:mod:`tactile_contact.round_contact`, :mod:`tactile_contact.contacts`): a compiled
+   multi-start least-squares fit of centre, profile (punch- or Hertz-like, 0.4–9.6 mm) and
+   force. Quantised readings (8-bit counts) report the posterior mean over the contact's
+   size/centre/force valley instead of the least-squares point. Kept when they explain the
+   readings to within noise and model error (χ² test).
+4. Otherwise the *grid solution*: q = C⁺_λ·δ with the precomputed regularised inverse; where
+   it goes negative beyond noise, two passes of non-negative Tikhonov least squares (whole
+   grid, then near its strong cells: docs/reconstruction.md); then round contacts fitted
+   around it replace it when they explain the readings about as well.
+5. Summary (total force, CoP, area, peak) from the contacts, and, when wanted, the traction
+   grid (the contacts rendered on the cells) and the deflection grid.
 
-Methods ``tikhonov``, ``tsvd`` and ``pinv`` (the paper's) use the free product only.
+Methods ``tikhonov``, ``tsvd`` and ``pinv`` (the paper's), and ``refine: none``, use the grid
+solution only.
 """
 
 from __future__ import annotations
@@ -75,7 +74,7 @@ class ContactResult:
         residual_norm: ‖C·q − δ‖ [m] over the valid taxels.
         solve_time: wall time of the solve [s].
         taxels_active: valid taxels with |δ| above the contact threshold.
-        refined: a refinement (round contacts, or the axisymmetric fit) replaced the grid
+        refined: round contacts replaced the grid
             solution.
         taxels_used: valid taxels the solve used (those excluded: ``valid`` False, NaN, out
             of range).
@@ -632,82 +631,7 @@ class Reconstructor:
         q2, s2, it2 = self._nnls(cols, ok, delta, warm=False)
         q = np.zeros_like(q1)
         q[cols] = q2
-        if self.params.get("refine", "none") == "axisymmetric":
-            fit = self._axisymmetric_fit(q, delta, ok)
-            if fit is not None:
-                return fit, s1 and s2, it1 + it2, True
         return q, s1 and s2, it1 + it2, False
-
-    def _axisymmetric_fit(self, q: NDArray, delta: NDArray, ok: NDArray) -> NDArray | None:
-        """Best single axisymmetric contact (Hertz-like or flat-punch-like profile) near the
-        NNLS solution, or None when it explains the data clearly worse than the NNLS field.
-
-        Searches the profile family, contact radius (FIT_RADII) and centre (±1.5 mm around the
-        NNLS centre of pressure, 0.75 mm steps); the force of each candidate is the
-        non-negative least-squares scale. The candidate's exact cell averages replace q.
-        """
-        from tactile_contact.indenters import FlatPunch, HertzSphere
-
-        pos = q > 0
-        if not pos.any():
-            return None
-        cop = (q[pos] @ self._centers[pos]) / q[pos].sum()
-        p = self.params
-        young, nu = float(p["young"]), float(p["poisson"])
-        reach = max(FIT_RADII) + 1.5e-3 + self.traction_grid.cell_size
-        local = np.hypot(*(self._centers - cop).T) <= reach
-        cen = self._centers[local]
-        hs = np.full_like(cen, 0.5 * self.traction_grid.cell_size)
-        c_loc = self.forward[np.ix_(ok, local)]
-        d = delta[ok]
-        shapes = [FlatPunch(a) for a in FIT_RADII]
-        shapes += [HertzSphere.with_contact_radius(a, 1.0, young, nu) for a in FIT_RADII]
-
-        def score(shape, c):
-            unit = shape.pressure_on_cells(cen, hs, 1.0, c, young, nu)
-            d1 = c_loc @ unit
-            nn = float(d1 @ d1)
-            if nn <= 0:
-                return None
-            force = max(0.0, float(d1 @ d) / nn)
-            return float(np.linalg.norm(force * d1 - d)), force, unit, shape, c
-
-        def better(cur, new):
-            return new if new is not None and (cur is None or new[0] < cur[0]) else cur
-
-        # Coarse to fine (time): every profile at the NNLS centre, then the centre on a
-        # ±1.5 mm / 0.75 mm lattice for the best profile and its neighbouring radii.
-        best = None
-        for shape in shapes:
-            best = better(best, score(shape, cop))
-        if best is None:
-            return None
-        k = shapes.index(best[3])
-        family = shapes[: len(FIT_RADII)] if k < len(FIT_RADII) else shapes[len(FIT_RADII) :]
-        j = k % len(FIT_RADII)
-        near = family[max(0, j - 1) : j + 2]
-        steps = np.arange(-2, 3) * 0.75e-3
-        for dx in steps:
-            for dy in steps:
-                for shape in near:
-                    best = better(best, score(shape, cop + np.array([dx, dy])))
-        # Polish: half steps around the best centre, best profile and neighbouring radii.
-        c0 = best[4]
-        j = family.index(best[3]) if best[3] in family else j
-        for dx in (-0.375e-3, 0.0, 0.375e-3):
-            for dy in (-0.375e-3, 0.0, 0.375e-3):
-                for shape in family[max(0, j - 1) : j + 2]:
-                    best = better(best, score(shape, c0 + np.array([dx, dy])))
-        if best is None or best[1] <= 0:
-            return None
-        # Accept the single contact only if it explains the data about as well as the free-form
-        # NNLS field (two separate contacts, or a non-round one, do not).
-        r_nnls = float(np.linalg.norm(self.forward[ok] @ q - d))
-        if best[0] > FIT_RESIDUAL_FACTOR * r_nnls + self.noise * math.sqrt(d.size):
-            return None
-        out = np.zeros_like(q)
-        out[local] = best[1] * best[2]
-        return out
 
     def _round_fit(
         self, q: NDArray, delta: NDArray, ok: NDArray
@@ -753,11 +677,8 @@ RENDER_SUB = 4
 #: tables against a finer forward model: 1–4 %).
 ROUND_MODEL_ERROR = 0.05
 
-#: Contact radii [m] tried by the axisymmetric refinement.
-FIT_RADII = (0.75e-3, 1.0e-3, 1.5e-3, 2.0e-3, 3.0e-3, 4.0e-3, 6.0e-3)
-#: A refinement is kept only if its residual is at most this factor times the grid solution's
-#: plus the noise (for the axisymmetric one, two separate contacts or a strongly non-round one
-#: fail this).
+#: Round contacts fitted around the grid solution are kept only if their residual is at most
+#: this factor times the grid solution's plus the noise.
 FIT_RESIDUAL_FACTOR = 1.5
 
 

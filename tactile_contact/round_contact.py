@@ -290,7 +290,7 @@ def posterior_contact(
     fit: RoundFit,
     sigma: float,
     *,
-    half: float = 1.0e-3,
+    half: float = 1.5e-3,
     step: float = 2.5e-4,
     near: float = 0.015,
     radius_stride: int = 2,

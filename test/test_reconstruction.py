@@ -40,12 +40,6 @@ def default(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def refined(tmp_path_factory):
-    path, patch = _bundle(tmp_path_factory, "refined", solver={"refine": "axisymmetric"})
-    return Reconstructor.from_bundle(path, patch), patch
-
-
-@pytest.fixture(scope="module")
 def point_pinv(tmp_path_factory):
     path, patch = _bundle(
         tmp_path_factory,
@@ -198,7 +192,9 @@ def test_delta_c_and_delta_entry_points_agree(default, indentation):
     r, _ = default
     delta, _ = indentation
     dc = compression_to_delta_c(delta, 2e-3, 4.37, np.pi * 4e-6)
-    a, b = r.solve(dc), r.solve_deflection(delta)
+    # ΔC is read as the driver gives it (counts: the posterior over the quantisation valley);
+    # a deflection with a noise level passed is read the same way.
+    a, b = r.solve(dc), r.solve_deflection(delta, noise=r.default_noise)
     np.testing.assert_allclose(a.traction, b.traction, rtol=1e-6, atol=1e-6 * b.peak_pressure)
     assert a.total_force == pytest.approx(b.total_force, rel=1e-6)
 
@@ -215,14 +211,15 @@ def test_invalid_taxels_are_ignored(default, indentation):
     np.testing.assert_allclose(c.traction, b.traction, rtol=1e-6, atol=1e-6 * b.peak_pressure)
     # a capacitance at or below −C0 is no compression at all: excluded, not an exception
     dc = compression_to_delta_c(delta, 2e-3, 4.37, np.pi * 4e-6)
+    ref = r.solve(np.where(valid, dc, 0.0), valid=valid)
     dc[10] = -1.0
     d = r.solve(dc)
-    assert d.total_force == pytest.approx(b.total_force, rel=1e-6)
+    assert d.total_force == pytest.approx(ref.total_force, rel=1e-6)
     assert d.taxels_used == b.taxels_used == 71
     # Beyond the converter's full scale (no 8-bit reading gives 1 nF, ~4000 C0) and a
     # compression of the whole layer: excluded too, and counted.
     dc[10] = 1e-9
-    assert r.solve(dc).total_force == pytest.approx(b.total_force, rel=1e-6)
+    assert r.solve(dc).total_force == pytest.approx(ref.total_force, rel=1e-6)
     assert r.solve(dc).taxels_used == 71
     e = r.solve_deflection(np.where(valid, delta, 2e-3))
     assert e.total_force == pytest.approx(b.total_force, rel=1e-6) and e.taxels_used == 71
@@ -281,37 +278,13 @@ def test_expected_layout_mismatch_is_refused(tmp_path_factory):
     Reconstructor.from_bundle(path, load_layout(ROOT / "config" / "hexagon_patch.yaml").patches[0])
 
 
-def test_axisymmetric_refinement_single_contact_only(refined):
-    r, _ = refined
-    fm = ForwardModel(r.taxel_xy, 2e-3, 2.1e5, 0.5, taxel_radius=2e-3)
-    one = fm.compression(HertzSphere(3e-3), 1.0, r.taxel_xy[20] + [1e-3, 0.5e-3])
-    res = r.solve_deflection(one)
-    assert res.refined and res.solver == "nnls"
-    assert res.total_force == pytest.approx(1.0, rel=0.1)
-    assert np.hypot(*(np.asarray(res.cop) - r.taxel_xy[20] - [1e-3, 0.5e-3])) < 0.5e-3
-    # two separate contacts: one round contact cannot explain them, the NNLS field is kept
-    two = one + fm.compression(HertzSphere(6e-3), 1.0, r.taxel_xy[51])
-    res2 = r.solve_deflection(two)
-    assert not res2.refined
-    assert res2.total_force == pytest.approx(2.0, rel=0.25)
-    assert res2.cop == pytest.approx(tuple(r.taxel_xy[[20, 51]].mean(axis=0)), abs=1.5e-3)
-
-
-def test_positively_homogeneous_in_the_data(default, refined, indentation):
-    # Non-negative least squares with a fixed λ, the support rule and the profile fits are all
-    # positively homogeneous: twice the readings give twice the pressure, same CoP and area.
+def test_positively_homogeneous_in_the_data(default, indentation):
+    # The least-squares round fit (precise readings) is positively homogeneous: twice the
+    # readings give twice the force, the same centre and area (to the fit's tolerance).
     delta, _ = indentation
-    r, _ = refined
-    a, b = r.solve_deflection(delta), r.solve_deflection(2.0 * delta)
-    assert a.refined == b.refined
-    assert b.total_force == pytest.approx(2.0 * a.total_force, rel=1e-5)
-    assert b.cop == pytest.approx(a.cop, abs=1e-7)
-    assert b.contact_area == pytest.approx(a.contact_area)
-    # The default's posterior mean weighs the data against a fixed measurement error (the
-    # ``fit_sigma``), so it is homogeneous only where the data dominate: twice a clean 1.5 N
-    # press moves its force by 0.9 % (measured), its centre by 10 µm.
     r, _ = default
     a, b = r.solve_deflection(delta), r.solve_deflection(2.0 * delta)
     assert a.refined and b.refined
-    assert b.total_force == pytest.approx(2.0 * a.total_force, rel=0.04)
-    assert b.cop == pytest.approx(a.cop, abs=2e-5)
+    assert b.total_force == pytest.approx(2.0 * a.total_force, rel=1e-3)
+    assert b.cop == pytest.approx(a.cop, abs=2e-6)
+    assert b.contact_area == pytest.approx(a.contact_area, rel=1e-2)
