@@ -162,17 +162,29 @@ def coarse(table, t0, dt, step, xy, d, w2, centres, radius_index):  # pragma: no
 
 
 @numba.njit(**_JIT)
-def fit_one(
-    table, t0, dt, step, xy, d, w2, centres, radius_index, pre, keep, iterations
-):  # pragma: no cover
+def fit_one(  # pragma: no cover - compiled
+    table,
+    t0,
+    dt,
+    step,
+    xy,
+    d,
+    w2,
+    centres,
+    centre_radius_index,
+    radius_index,
+    pre,
+    keep,
+    iterations,
+):
     """Best single contact: (cost, x, y, t, F, family); F = 0 when none has a positive force.
 
-    For every family and every start radius (tabulated indices ``radius_index``) the best of
-    the lattice ``centres`` (L, 2) starts a short LM run of ``pre`` iterations; the ``keep``
-    lowest then run to ``iterations``. Why so many starts: with precise readings each
-    profile's basin is narrow (a 12 mm punch's edge crossing an electrode moves the readings
-    by many σ per 0.1 mm), so no lattice a frame can afford lands in it, while a short LM run
-    from each radius does.
+    Per family, the best of the lattice ``centres`` (L, 2) over a few radii
+    (``centre_radius_index``) starts a short LM run of ``pre`` iterations from every start
+    radius (tabulated indices ``radius_index``); the ``keep`` lowest then run to
+    ``iterations``. Why so many starts: with precise readings each profile's basin is narrow
+    (a 12 mm punch's edge crossing an electrode moves the readings by many σ per 0.1 mm), so
+    no lattice a frame can afford lands in it, while a short LM run from each radius does.
     """
     n_f = table.shape[0]
     n_r = radius_index.shape[0]
@@ -180,27 +192,30 @@ def fit_one(
     fam = np.zeros(n_f * n_r, np.int64)
     n = 0
     for f in range(n_f):
-        for k in range(n_r):
-            t = t0 + dt * radius_index[k]
-            bc = np.inf
-            bx = 0.0
-            by = 0.0
+        bc = np.inf
+        bx = centres[0, 0]
+        by = centres[0, 1]
+        for k in range(centre_radius_index.shape[0]):
+            t = t0 + dt * centre_radius_index[k]
             for c in range(centres.shape[0]):
                 cost, force = _cost_force(
                     table, f, t0, dt, step, xy, d, w2, centres[c, 0], centres[c, 1], t
                 )
                 if force > 0.0 and cost < bc:
                     bc, bx, by = cost, centres[c, 0], centres[c, 1]
-            if bc < np.inf:
-                cost, x, y, tt, force = lm_fit(table, f, t0, dt, step, xy, d, w2, bx, by, t, pre)
-                if force > 0.0:
-                    cand[n, 0] = cost
-                    cand[n, 1] = x
-                    cand[n, 2] = y
-                    cand[n, 3] = tt
-                    cand[n, 4] = force
-                    fam[n] = f
-                    n += 1
+        if not bc < np.inf:
+            continue
+        for k in range(n_r):
+            t = t0 + dt * radius_index[k]
+            cost, x, y, tt, force = lm_fit(table, f, t0, dt, step, xy, d, w2, bx, by, t, pre)
+            if force > 0.0:
+                cand[n, 0] = cost
+                cand[n, 1] = x
+                cand[n, 2] = y
+                cand[n, 3] = tt
+                cand[n, 4] = force
+                fam[n] = f
+                n += 1
     best = (np.inf, 0.0, 0.0, 0.0, 0.0, -1)
     order = np.argsort(cand[:n, 0])
     for m in range(min(keep, n)):

@@ -418,7 +418,7 @@ class Reconstructor:
 
     def _round_direct(
         self, delta: NDArray, ok: NDArray, sigma: NDArray, start: NDArray, posterior: bool
-    ) -> tuple[NDArray, list[Any]] | None:
+    ) -> tuple[NDArray, list[Any], float] | None:
         """Round contacts fitted straight to the readings from the detector's best place, or
         None when they do not explain the readings to within noise and model error (χ² test):
         then the grid path runs."""
@@ -444,7 +444,7 @@ class Reconstructor:
         chi2 = float(np.sum((pred - d) ** 2 / (s**2 + (ROUND_MODEL_ERROR * pred) ** 2)))
         if chi2 > n + 5.0 * math.sqrt(2.0 * n):
             return None
-        return self._render(fits), fits
+        return self._render(fits), fits, float(np.linalg.norm(pred - d))
 
     def _render(self, fits: list[Any]) -> NDArray[np.float64]:
         """Pressure [Pa] of the round contacts ``fits`` on the traction grid: the mean over
@@ -498,8 +498,9 @@ class Reconstructor:
         active: int,
     ) -> ContactResult:
         dt = time.perf_counter() - t0
-        if fit is not None:
-            # The contacts' own readings (tables), not their 2 mm-cell rendering's.
+        if fit is not None and len(fit) == 3:
+            residual = fit[2]  # the direct fit's own (tables), not its 2 mm-cell rendering's
+        elif fit is not None:
             pred = sum(self._round.predict(f, self.taxel_xy[ok]) for f in fit[1])
             residual = float(np.linalg.norm(pred - delta[ok]))
         else:

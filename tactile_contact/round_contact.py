@@ -262,7 +262,8 @@ def fit_round_contact(
         np.ascontiguousarray(d[local]),
         np.ascontiguousarray(w2),
         lattice,
-        np.unique(np.linspace(0, len(tables.radii) - 1, FIT_START_RADII).round()).astype(np.int64),
+        _spread(len(tables.radii), FIT_CENTRE_RADII),
+        _spread(len(tables.radii), FIT_START_RADII),
         FIT_PRE_ITERATIONS,
         FIT_KEEP,
         FIT_ITERATIONS if polish else FIT_PRE_ITERATIONS * 2,
@@ -277,6 +278,15 @@ def fit_round_contact(
 #: The fit starts from this many tabulated radii, evenly spread (every 3rd of the default 64):
 #: a 12 mm punch read by three taxels under its face has a basin narrower than 10 % in radius.
 FIT_START_RADII = 22
+#: Radii (evenly spread) whose best lattice centre starts every radius of a family.
+FIT_CENTRE_RADII = 8
+
+
+def _spread(n: int, k: int) -> NDArray[np.int64]:
+    """Up to k indices spread evenly over 0 … n − 1, both ends included."""
+    return np.unique(np.linspace(0, n - 1, min(k, n)).round()).astype(np.int64)
+
+
 #: Levenberg–Marquardt iterations from each start, then for the FIT_KEEP best to convergence.
 FIT_PRE_ITERATIONS = 3
 FIT_KEEP = 3
