@@ -10,7 +10,7 @@ STAMP := $(VENV)/.stamps
 SITE := $(VENV)/lib/python3.*/site-packages
 ROS_TEST_ENV := ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-$$((20 + $$$$ % 70))}
 
-.PHONY: all setup demo test lint format bench bench-quick bundles test-data clean distclean help
+.PHONY: all setup ros-launch demo test lint format bench bench-quick bundles test-data clean distclean help
 all: setup
 
 help:
@@ -48,6 +48,39 @@ $(STAMP)/editable: $(STAMP)/deps setup.py
 
 setup: $(STAMP)/msgs $(STAMP)/editable
 
+# ros2 launch / ros2 run / ros2 pkg / ros2 topic: launch, launch_ros, ros2cli and
+# composition_interfaces are not published as wheels. Installed from the sources in
+# ROS_LAUNCH_SRC (../shared/ros-launch/README.md) when that folder exists; a full ROS 2 install
+# has them already. The pure-Python packages with pip (no deps: their setup.py names
+# ament_index_python, which the wheels provide as ros-ament-index-python), the message package
+# with CMake into the venv like our own messages.
+ROS_LAUNCH_SRC ?= ../shared/ros-launch
+ROS_LAUNCH_PKGS := launch-3.7.1/launch launch-3.7.1/launch_xml launch-3.7.1/launch_yaml \
+  launch_ros-0.28.0/launch_ros launch_ros-0.28.0/ros2launch ros2cli-0.36.1/ros2cli \
+  ros2cli-0.36.1/ros2pkg ros2cli-0.36.1/ros2run ros2cli-0.36.1/ros2topic \
+  ros2cli-0.36.1/ros2node ros2cli-0.36.1/ros2param rosidl_runtime_py-0.14.0
+$(STAMP)/ros-launch: $(STAMP)/deps
+	@if [ ! -d "$(ROS_LAUNCH_SRC)" ]; then \
+	  echo "make ros-launch: no $(ROS_LAUNCH_SRC); ros2 launch is not installed here (a full ROS 2 install has it)"; \
+	  exit 0; \
+	fi; \
+	set -e; rm -rf build/ros-launch; mkdir -p build/ros-launch; \
+	for t in $(ROS_LAUNCH_SRC)/*.tar.gz; do tar -xzf $$t -C build/ros-launch; done; \
+	for d in $(ROS_LAUNCH_PKGS); do \
+	  $(PIP) install --no-deps --no-build-isolation build/ros-launch/$$d > /dev/null; done; \
+	PATH=$(CURDIR)/$(VENV)/bin:$$PATH cmake -S build/ros-launch/rcl_interfaces-2.2.0/composition_interfaces \
+	  -B build/ros-launch/composition_interfaces -DCMAKE_BUILD_TYPE=Release \
+	  -DCMAKE_PREFIX_PATH=$(CURDIR)/$(VENV) -DCMAKE_INSTALL_PREFIX=$(CURDIR)/$(VENV) \
+	  -DPython3_EXECUTABLE=$(CURDIR)/$(PY) -DBUILD_TESTING=OFF > build/ros-launch/configure.log 2>&1 \
+	  || (cat build/ros-launch/configure.log; false); \
+	PATH=$(CURDIR)/$(VENV)/bin:$$PATH cmake --build build/ros-launch/composition_interfaces -j2 \
+	  > build/ros-launch/build.log 2>&1 || (tail -50 build/ros-launch/build.log; false); \
+	cmake --install build/ros-launch/composition_interfaces > build/ros-launch/install.log 2>&1; \
+	AMENT_PREFIX_PATH=$(CURDIR)/$(VENV) $(PY) -c "import launch_ros.actions, ros2cli, composition_interfaces.srv"
+	@touch $@
+
+ros-launch: $(STAMP)/ros-launch
+
 lint: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
@@ -56,7 +89,7 @@ format: setup
 	$(VENV)/bin/ruff format .
 	$(VENV)/bin/ruff check --fix .
 
-test: setup
+test: setup ros-launch
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	$(ROS_TEST_ENV) TACTILE_REQUIRE_ROS=1 $(PY) -m pytest -q $(PYTEST_ARGS)

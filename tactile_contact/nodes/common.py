@@ -16,6 +16,7 @@ Everything here is a thin convenience over rclpy; no node logic lives in this mo
 from __future__ import annotations
 
 import math
+import signal
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
@@ -195,6 +196,13 @@ def run_node(name: str, factory: Callable[[], Node], args: list[str] | None = No
         print(f"ERROR: {name}: {type(exc).__name__}: {exc}")
         raise SystemExit(1) from None
     finally:
+        # A Ctrl-C in a terminal reaches every process of the group, and ros2 launch forwards
+        # its own SIGINT too: a second one during the cleanup must not interrupt it (it left
+        # a KeyboardInterrupt traceback from a thread join and a half-closed bus).
+        # rclpy's shutdown puts back the handler it found, so ignore again after it: the
+        # process is on its way out.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
