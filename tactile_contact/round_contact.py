@@ -301,9 +301,9 @@ def posterior_contact(
     sigma: float,
     *,
     half: float = 1.5e-3,
-    step: float = 2.5e-4,
+    step: float = 3.75e-4,
     near: float = 0.015,
-    radius_stride: int = 2,
+    radius_stride: int = 3,
 ) -> RoundFit:
     """Posterior mean of one round contact around the least-squares ``fit``.
 
