@@ -351,3 +351,20 @@ def test_decode_accepts_any_bytes_like() -> None:
     r = asm.feed_raw(0x401, memoryview(raw), 0.0)
     assert r is not None and list(r.values) == [9] * 7 + [1, 2, 3, 4, 5]
     assert r.out_of_range[11] and r.error_flags == ERROR_NOT_CONNECTED
+
+
+@given(
+    can_id=st.integers(0, (1 << 29) - 1),
+    data=st.binary(max_size=64),
+    strict=st.booleans(),
+    classes=st.sampled_from([(4,), (3, 4)]),
+)
+def test_any_bytes_decode_or_raise_only_the_codecs_error(can_id, data, strict, classes) -> None:
+    """Classic and CAN FD lengths (0–64), any id: a SkinFrame or a CodecError, nothing else."""
+    try:
+        frame = decode_frame(can_id, data, id_classes=classes, strict_status=strict)
+    except CodecError as e:
+        assert str(e)  # the message names the problem
+    else:
+        assert len(data) >= 8 and data[0] in (FRAME_A, FRAME_B)
+        assert len(frame.values) == (7 if data[0] == FRAME_A else 5)
