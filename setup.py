@@ -2,7 +2,7 @@
 
 `pip install .` gives the elastic models, solvers, bundles, CAN codec and the offline matrix
 tool without ROS. The ROS 2 nodes need rclpy and the package's messages, which the CMake build
-(colcon on a robot, `make ros` here) provides.
+(colcon on a robot, `make setup` here) provides.
 """
 
 from pathlib import Path

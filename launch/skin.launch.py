@@ -2,11 +2,17 @@
 
     ros2 launch tactile_contact skin.launch.py layout:=/path/layout.yaml bundles:=/path/bundles
     ros2 launch tactile_contact skin.launch.py use_simulator:=true channel:=vcan0 use_rviz:=true
+    ros2 launch tactile_contact skin.launch.py use_simulator:=true \
+        interface:=udp_multicast channel:=239.74.163.2
 
 Every node parameter that matters at bringup is a launch argument; the rest come from the
 YAML files in config/ (copy and edit them, or override with ros2 param). With
-use_simulator the simulator writes module frames to the same CAN channel the driver reads, so
-the channel must be shared between processes (a SocketCAN vcan interface, e.g. vcan0).
+use_simulator the simulator writes module frames to the same CAN bus the driver reads, and
+they are separate processes, so the bus must be one processes can share: a SocketCAN vcan
+(interface socketcan, channel vcan0) or, where there is no vcan, python-can's udp_multicast
+interface (channel = an IPv4 multicast group; loopback works). python-can's `virtual`
+interface is shared within one process only: use `tactile-contact bringup --simulate` or
+`ros2 run tactile_contact tactile_contact_bringup --simulate` for that.
 """
 
 from launch import LaunchDescription
@@ -20,7 +26,7 @@ ARGUMENTS = [
     ("namespace", "", "namespace of all nodes and topics"),
     ("layout", "", "patch layout YAML (empty: the package's config/hexagon_patch.yaml)"),
     ("bundles", "bundles", "folder of matrix bundles built by tactile-contact-build"),
-    ("interface", "socketcan", "python-can interface of the skin bus"),
+    ("interface", "socketcan", "python-can interface of the skin bus (socketcan, udp_multicast)"),
     ("channel", "can0", "CAN channel of the skin bus"),
     ("use_simulator", "false", "start skin_simulator writing frames to the same channel"),
     ("scenario", "sweep", "simulator scenario: sweep, press or idle"),

@@ -33,7 +33,7 @@ def _ros_available() -> str | None:
 
         from tactile_contact.msg import ContactState  # noqa: F401
     except Exception as exc:  # any import failure means: no ROS here
-        return f"rclpy or tactile_contact.msg not importable ({exc!r}); run `make ros`"
+        return f"rclpy or tactile_contact.msg not importable ({exc!r}); run `make setup`"
     return None
 
 

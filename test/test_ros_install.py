@@ -2,9 +2,15 @@
 ``source install/setup.bash``, ``ros2 pkg prefix``, ``ros2 run`` and ``ros2 launch`` — the real
 commands, in real processes, over real DDS.
 
+Every command runs in ``bash`` with the environment a user's fresh terminal has: no venv on
+PATH, no AMENT_PREFIX_PATH, no PYTHONPATH. The build sources the venv's ``setup.bash`` (the
+ROS 2 wheels as an underlay, as ``/opt/ros/<distro>/setup.bash`` is on a robot); everything
+after it sources only the workspace's ``install/setup.bash``, which colcon chains to the venv.
+
 colcon comes from PyPI (requirements/python.txt); ros2cli, launch and launch_ros from
 ``make ros-launch`` (../shared/ros-launch). Where either is missing the tests skip with the
-reason, except under TACTILE_REQUIRE_ROS=1 (``make test``, CI), where they fail.
+reason, except under TACTILE_REQUIRE_ROS=1 (colcon) and TACTILE_REQUIRE_LAUNCH=1 (ros2; ``make
+test`` sets both where ../shared/ros-launch exists, .ci/run always), where they fail.
 
 ``ros2 launch … use_simulator:=true`` runs the simulator and the driver as separate processes,
 so they share the bus through python-can's ``udp_multicast`` interface on loopback (this
@@ -28,27 +34,65 @@ pytestmark = pytest.mark.ros
 
 ROOT = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent
+VENV = VENV_BIN.parent
 EXECUTABLES = ("skin_driver", "skin_simulator", "contact_reconstruction", "tactile_contact_bringup")
+TOOLS = (
+    "tactile-contact",
+    "tactile-contact-build",
+    "tactile-contact-calibrate",
+    "tactile-contact-presses",
+)
 BAD_OUTPUT = ("Traceback", "cannot use Destroyable")
 
 
-def _require(tool: str) -> None:
+def _require(tool: str, flag: str, how: str) -> None:
     if (VENV_BIN / tool).exists():
         return
-    reason = f"{tool} not in {VENV_BIN} (make ros-launch / pip install colcon-core)"
-    if os.environ.get("TACTILE_REQUIRE_ROS") == "1":
-        pytest.fail(f"TACTILE_REQUIRE_ROS=1 but {reason}")
+    reason = f"{tool} not in {VENV_BIN} ({how})"
+    if os.environ.get(flag) == "1":
+        pytest.fail(f"{flag}=1 but {reason}")
     pytest.skip(reason)
 
 
-def _env() -> dict[str, str]:
+def _require_colcon() -> None:
+    _require("colcon", "TACTILE_REQUIRE_ROS", "pip install colcon-core colcon-ros: make setup")
+    if not (VENV / "setup.bash").is_file():
+        pytest.fail(f"no {VENV}/setup.bash (the venv as an underlay): make setup writes it")
+
+
+def _require_ros2() -> None:
+    _require("ros2", "TACTILE_REQUIRE_LAUNCH", "ros2cli/launch_ros: make ros-launch")
+
+
+def _user_env() -> dict[str, str]:
+    """This process's environment without the venv: what a fresh terminal has (the DDS
+    discovery settings of the test run stay)."""
     env = dict(os.environ)
-    env["PATH"] = f"{VENV_BIN}{os.pathsep}{env.get('PATH', '')}"
-    prefix = str(VENV_BIN.parent)
-    env["AMENT_PREFIX_PATH"] = prefix
-    env["CMAKE_PREFIX_PATH"] = prefix
-    env.pop("PYTHONPATH", None)
+    path = [p for p in env.get("PATH", "").split(os.pathsep) if p and Path(p) != VENV_BIN]
+    env["PATH"] = os.pathsep.join(path or ["/usr/bin", "/bin"])
+    for name in (
+        "AMENT_PREFIX_PATH",
+        "CMAKE_PREFIX_PATH",
+        "COLCON_PREFIX_PATH",
+        "PYTHONPATH",
+        "VIRTUAL_ENV",
+        "LD_LIBRARY_PATH",
+        "_ROS_WHEELS_BOOTSTRAP_COMPLETE",
+    ):
+        env.pop(name, None)
     return env
+
+
+def _run(ws: Path, script: str, timeout_s: float = 120.0) -> subprocess.CompletedProcess:
+    """A short shell script after ``source install/setup.bash``; its output."""
+    return subprocess.run(
+        ["bash", "-c", f"source {ws}/install/setup.bash && {script}"],
+        cwd=ws,
+        env=_user_env(),
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+    )
 
 
 class Shell:
@@ -61,7 +105,7 @@ class Shell:
         self.proc = subprocess.Popen(
             ["bash", "-c", f"source {ws}/install/setup.bash && exec {command}"],
             cwd=ws,
-            env=_env(),
+            env=_user_env(),
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
@@ -106,29 +150,43 @@ class Shell:
 @pytest.fixture(scope="module")
 def workspace(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """``colcon build --packages-select tactile_contact`` in a fresh workspace whose src/ links
-    to this checkout, with the ROS 2 wheels of the venv as the underlay."""
-    _require("colcon")
+    to this checkout, over the venv's ROS 2 wheels as the underlay — the README's commands."""
+    _require_colcon()
     ws = tmp_path_factory.mktemp("ws")
     (ws / "src").mkdir()
     (ws / "src" / "tactile_contact").symlink_to(ROOT, target_is_directory=True)
+    start = time.monotonic()
     done = subprocess.run(
         [
-            str(VENV_BIN / "colcon"),
-            "build",
-            "--packages-select",
-            "tactile_contact",
-            "--cmake-args",
-            f"-DPython3_EXECUTABLE={sys.executable}",
-            "-DBUILD_TESTING=OFF",
+            "bash",
+            "-c",
+            f"source {VENV}/setup.bash && colcon build --packages-select tactile_contact",
         ],
         cwd=ws,
-        env=_env(),
+        env=_user_env(),
         capture_output=True,
         text=True,
         timeout=900,
     )
-    assert done.returncode == 0, f"colcon build failed:\n{done.stdout}\n{done.stderr}"
+    log = f"{done.stdout}\n{done.stderr}"
+    assert done.returncode == 0, f"colcon build failed:\n{log}"
+    assert "1 package finished" in done.stdout, log
+    # The venv is a proper underlay (local_setup.* found), not a bare AMENT_PREFIX_PATH entry.
+    assert "local_setup" not in log, log
+    print(f"colcon build: {time.monotonic() - start:.1f} s")
     return ws
+
+
+@pytest.fixture(scope="module")
+def bundles(workspace: Path) -> Path:
+    """The default patch's matrices, built with the installed ``tactile-contact-build`` from
+    the installed layout file, as the README's robot section does."""
+    out = workspace / "bundles"
+    layout = "install/tactile_contact/share/tactile_contact/config/hexagon_patch.yaml"
+    done = _run(workspace, f"tactile-contact-build {layout} -o {out}")
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert (out / "hexagon" / "manifest.json").is_file(), done.stdout + done.stderr
+    return out
 
 
 def test_colcon_installs_an_ament_package(workspace: Path) -> None:
@@ -136,31 +194,45 @@ def test_colcon_installs_an_ament_package(workspace: Path) -> None:
     for exe in EXECUTABLES:
         path = prefix / "lib" / "tactile_contact" / exe
         assert path.is_file() and os.access(path, os.X_OK), path
+    for tool in TOOLS:
+        path = prefix / "bin" / tool
+        assert path.is_file() and os.access(path, os.X_OK), path
     share = prefix / "share" / "tactile_contact"
     assert (share / "package.xml").is_file()
     assert (share / "launch" / "skin.launch.py").is_file()
     for name in ("skin_driver", "skin_simulator", "contact_reconstruction", "hexagon_patch"):
         assert (share / "config" / f"{name}.yaml").is_file(), name
-    assert any((share / "rviz").glob("*.rviz"))
+    assert (share / "rviz" / "tactile_contact.rviz").is_file()
+    assert sorted(p.name for p in (share / "msg").glob("*.msg")) == sorted(
+        p.name for p in (ROOT / "msg").glob("*.msg")
+    )
     index = prefix / "share" / "ament_index" / "resource_index" / "packages" / "tactile_contact"
     assert index.is_file()
-    # The messages and the library import from the install, not from this checkout.
-    probe = Shell(
+
+    # After `source install/setup.bash` alone: the package, its messages (with their C type
+    # support: a message round-trips through serialisation) and the tools come from the install.
+    probe = _run(
         workspace,
-        "python -c 'import tactile_contact, tactile_contact.msg as m; "
-        "print(tactile_contact.__file__); print(m.ContactState.__module__)'",
+        "python3 -c 'import tactile_contact, tactile_contact.msg._contact_state as m; "
+        "from tactile_contact.msg import ContactState; "
+        "from rclpy.serialization import serialize_message, deserialize_message; "
+        "x = deserialize_message(serialize_message(ContactState(total_force=1.5)), ContactState); "
+        "assert x.total_force == 1.5; print(tactile_contact.__file__); print(m.__file__)' "
+        "&& command -v tactile-contact-build && ros2 pkg prefix tactile_contact "
+        "&& ros2 pkg executables tactile_contact",
     )
-    assert probe.proc.wait(timeout=60) == 0, probe.output
-    probe._reader.join(timeout=5)
-    assert str(prefix) in probe.lines[0], probe.output
-    where = Shell(workspace, "ros2 pkg prefix tactile_contact")
-    assert where.proc.wait(timeout=60) == 0, where.output
-    where._reader.join(timeout=5)
-    assert where.lines[-1].strip() == str(prefix)
+    assert probe.returncode == 0, probe.stdout + probe.stderr
+    lines = probe.stdout.splitlines()
+    package, messages, tool, where = lines[:4]
+    assert package.startswith(str(prefix)), probe.stdout
+    assert messages.startswith(str(prefix)), probe.stdout
+    assert tool == str(prefix / "bin" / "tactile-contact-build"), probe.stdout
+    assert where == str(prefix), probe.stdout
+    assert sorted(lines[4:]) == sorted(f"tactile_contact {exe}" for exe in EXECUTABLES)
 
 
 def test_ros2_run_starts_the_driver_and_ctrl_c_stops_it(workspace: Path) -> None:
-    _require("ros2")
+    _require_ros2()
     run = Shell(
         workspace,
         "ros2 run tactile_contact skin_driver --ros-args -p interface:=virtual "
@@ -173,21 +245,21 @@ def test_ros2_run_starts_the_driver_and_ctrl_c_stops_it(workspace: Path) -> None
         assert bad not in run.output, run.output
 
 
-def test_ros2_launch_with_the_simulator(workspace: Path, ros_context: object) -> None:
+def test_ros2_launch_with_the_simulator(
+    workspace: Path, bundles: Path, ros_context: object
+) -> None:
     """The README's launch line: contacts with a force arrive, /diagnostics says OK, Ctrl-C
     ends every process cleanly."""
-    _require("ros2")
+    _require_ros2()
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.qos import qos_profile_sensor_data
 
-    from tactile_contact.build import build_layout
     from tactile_contact.msg import ContactState
 
-    bundles = workspace / "bundles"
-    build_layout(ROOT / "config" / "hexagon_patch.yaml", bundles, jobs=1)
     group = f"239.{random.randint(1, 254)}.{random.randint(1, 254)}.{random.randint(1, 254)}"
+    start = time.monotonic()
     launch = Shell(
         workspace,
         "ros2 launch tactile_contact skin.launch.py use_simulator:=true scenario:=press "
@@ -227,6 +299,7 @@ def test_ros2_launch_with_the_simulator(workspace: Path, ros_context: object) ->
                 break
         assert any(f > 0 for f in forces), f"no contact with a force:\n{launch.output}"
         assert healthy(), (levels, launch.output)
+        print(f"ros2 launch: force and OK diagnostics after {time.monotonic() - start:.1f} s")
     finally:
         executor.shutdown()
         node.destroy_node()
@@ -235,3 +308,5 @@ def test_ros2_launch_with_the_simulator(workspace: Path, ros_context: object) ->
     for bad in BAD_OUTPUT:
         assert bad not in launch.output, launch.output
     assert launch.output.count("process has finished cleanly") == 3, launch.output
+    # The parameter files were found in the install (a missing one is only a warning).
+    assert "Parameter file path is not a file" not in launch.output, launch.output
