@@ -9,8 +9,8 @@ Frames of an idle skin through Reconstructor, counted when reported in contact:
   ``solve_deflection`` with none passed (the z test at the layout's level and the scale-free
   energy-share test).
 
-With k false contacts in n frames the rate is k/n per frame, and with none the 95 % upper
-bound is 3/n (Poisson); × 180 000 frames per hour at 50 Hz.
+With k false contacts in n frames the rate is k/n per frame and its one-sided 95 % upper bound
+χ²(0.95; 2k + 2)/(2n) (Poisson; 3.0/n for k = 0); × 180 000 frames per hour at 50 Hz.
 
     .venv/bin/python bench/false_alarms.py [--frames 1000000] [--out docs/bench]
 """
@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import chi2
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -84,7 +85,7 @@ def main() -> None:
     for name, (fn, make) in cases.items():
         hits, secs = count(fn, make, args.frames)
         rate = hits / args.frames * PER_HOUR
-        bound = max(hits, 3) / args.frames * PER_HOUR
+        bound = chi2.ppf(0.95, 2 * (hits + 1)) / 2 / args.frames * PER_HOUR
         lines.append(
             f"{name:32s} {args.frames:9d} {hits:6d} {rate:10.3f} {bound:13.3f} "
             f"{secs / args.frames * 1e6:9.1f}"

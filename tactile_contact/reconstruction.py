@@ -436,10 +436,12 @@ class Reconstructor:
         n = len(d)
         if posterior and len(fits) == 1:
             # Quantised readings: report the posterior mean over the size/centre/force valley
-            # (round_contact.posterior_contact) instead of the least-squares point.
+            # (round_contact.posterior_contact) instead of the least-squares point. Its error is
+            # the rounding's (one count/√6), not the learnt noise level: the same readings give
+            # the same contact whatever frames came before (a replayed bag reproduces the run).
             from tactile_contact.round_contact import posterior_contact
 
-            fits = [posterior_contact(self._round, xy, d, fits[0], float(np.median(s)))]
+            fits = [posterior_contact(self._round, xy, d, fits[0], self._count_sigma)]
             pred = fitter.predicted(fits, xy)
         chi2 = float(np.sum((pred - d) ** 2 / (s**2 + (ROUND_MODEL_ERROR * pred) ** 2)))
         if chi2 > n + 5.0 * math.sqrt(2.0 * n):

@@ -251,23 +251,29 @@ def fit_round_contact(
         return None
     w = np.ones(len(d)) if sigma is None else np.broadcast_to(np.asarray(sigma, float), d.shape)
     w2 = 1.0 / np.square(w[local])
-    lattice = np.concatenate([_lattice(c, search, 5e-4) for c in c0])
     t0, dt = tables.log_grid
-    _cost, x, y, t, force, fam = fit_one(
-        tables.table,
-        t0,
-        dt,
-        tables.step,
-        np.ascontiguousarray(xy[local]),
-        np.ascontiguousarray(d[local]),
-        np.ascontiguousarray(w2),
-        lattice,
-        _spread(len(tables.radii), FIT_CENTRE_RADII),
-        _spread(len(tables.radii), FIT_START_RADII),
-        FIT_PRE_ITERATIONS,
-        FIT_KEEP,
-        FIT_ITERATIONS if polish else FIT_PRE_ITERATIONS * 2,
-    )
+    best = (math.inf, 0.0, 0.0, 0.0, 0.0, -1)
+    # Each start on its own: one lattice over all of them would start every radius from the
+    # single best lattice centre, and a ring-read punch's coarse best can be the wrong start.
+    for c in c0:
+        got = fit_one(
+            tables.table,
+            t0,
+            dt,
+            tables.step,
+            np.ascontiguousarray(xy[local]),
+            np.ascontiguousarray(d[local]),
+            np.ascontiguousarray(w2),
+            _lattice(c, search, 5e-4),
+            _spread(len(tables.radii), FIT_CENTRE_RADII),
+            _spread(len(tables.radii), FIT_START_RADII),
+            FIT_PRE_ITERATIONS,
+            FIT_KEEP,
+            FIT_ITERATIONS if polish else FIT_PRE_ITERATIONS * 2,
+        )
+        if got[4] > 0 and got[0] < best[0]:
+            best = got
+    _cost, x, y, t, force, fam = best
     if not force > 0:
         return None
     fit = RoundFit(float(force), (float(x), float(y)), int(fam), float(math.exp(t)), 0.0)

@@ -114,5 +114,6 @@ def test_second_start_is_the_centroid_of_the_strong_readings(fitter):
     starts = fitter.starts(XY[ring[0]], XY, d)
     assert starts.shape == (2, 2)
     assert np.allclose(starts[1], XY[CENTRE], atol=1e-9)
-    assert np.allclose(fitter.starts(None, XY, d), XY[[ring[0]]])
-    assert fitter.starts(XY[CENTRE], XY, d).shape == (1, 2)
+    # Without a first guess: the strongest taxel, then the centroid; each start only once.
+    assert np.allclose(fitter.starts(None, XY, d), XY[[ring[0], CENTRE]])
+    assert np.allclose(fitter.starts(XY[CENTRE], XY, d), XY[[CENTRE, ring[0]]])
