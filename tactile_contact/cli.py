@@ -62,6 +62,17 @@ def _bringup(args: argparse.Namespace) -> int:
     return 0
 
 
+def _taxel_topics(bag: str) -> list[str]:
+    """The bag's TaxelArray topics: what a reconstruction node reads (replaying the recorded
+    contact summaries too would mix them with the node's own on the same topic)."""
+    from rosbags.rosbag2 import Reader
+
+    with Reader(bag) as reader:
+        return sorted(
+            {c.topic for c in reader.connections if c.msgtype == "tactile_contact/msg/TaxelArray"}
+        )
+
+
 def _replay(args: argparse.Namespace) -> int:
     import rclpy
     from rclpy.context import Context
@@ -78,7 +89,8 @@ def _replay(args: argparse.Namespace) -> int:
             parameter_overrides=[rclpy.parameter.Parameter("bundles_dir", value=args.bundles)],
         )
         player_node = rclpy.create_node("tactile_contact_player", context=context)
-        player = BagPlayer(player_node, args.bag, topics=args.topics or None, rate=args.rate)
+        topics = args.topics or _taxel_topics(args.bag)
+        player = BagPlayer(player_node, args.bag, topics=topics, rate=args.rate)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(recon)
         executor.add_node(player_node)
@@ -120,7 +132,9 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("bag")
     r.add_argument("--bundles", default="bundles")
     r.add_argument("--rate", type=float, default=1.0)
-    r.add_argument("--topics", nargs="*", default=[])
+    r.add_argument(
+        "--topics", nargs="*", default=[], help="topics to replay (default: the TaxelArray ones)"
+    )
     d = sub.add_parser("demo", help="end-to-end demo with figures and a PNG")
     d.add_argument("rest", nargs=argparse.REMAINDER)
     args = parser.parse_args(argv)
