@@ -122,3 +122,19 @@ def test_launch_description_loads() -> None:
     ).try_get_launch_description_without_context()
     names = {e.name for e in description.entities if isinstance(e, DeclareLaunchArgument)}
     assert {"layout", "bundles", "interface", "channel", "use_simulator", "use_rviz"} <= names
+
+
+def test_every_launch_argument_is_documented() -> None:
+    """The README's launch-argument table lists exactly the file's arguments and defaults."""
+    tree = ast.parse(LAUNCH.read_text())
+    (arguments,) = [
+        ast.literal_eval(n.value)
+        for n in tree.body
+        if isinstance(n, ast.Assign) and getattr(n.targets[0], "id", None) == "ARGUMENTS"
+    ]
+    rows = {}
+    for line in (ROOT / "README.md").read_text().splitlines():
+        m = re.match(r'\| `(\w+)` \| "([^"]*)" \| (.+) \|$', line)
+        if m:
+            rows[m.group(1)] = (m.group(2), m.group(3))
+    assert rows == {name: (default, text) for name, default, text in arguments}
