@@ -27,6 +27,8 @@ from tactile_contact.codec import (
     BadFrameType,
     BadStatus,
     CodecError,
+    NotDataFrame,
+    OversizedFrame,
     TruncatedFrame,
     UnknownId,
     checked_byte,
@@ -94,11 +96,18 @@ class AssemblerCounters:
     frames: int = 0
     readings: int = 0
     truncated: int = 0
+    """DLC below 8."""
+    oversized: int = 0
+    """More than 8 data bytes in a classic frame."""
     unknown_id: int = 0
+    """Standard ids outside the accepted classes (another device's traffic, or garbage)."""
     bad_type: int = 0
     bad_status: int = 0
-    not_data: int = 0
-    """Extended-id, remote, error or CAN FD frames."""
+    error_frames: int = 0
+    remote: int = 0
+    extended: int = 0
+    fd: int = 0
+    """CAN FD frames (skin modules send classic frames)."""
     unexpected_module: int = 0
     """Valid skin frames of a (board, triangle) not in the configured module set."""
     duplicates: int = 0
@@ -106,16 +115,28 @@ class AssemblerCounters:
     orphan_b: int = 0
     reordered: int = 0
 
+    #: The kinds of rejected frames, each a counter (and a ``rejected_<kind>`` diagnostic).
+    REJECT_KINDS = (
+        "truncated",
+        "oversized",
+        "unknown_id",
+        "bad_type",
+        "bad_status",
+        "error_frames",
+        "remote",
+        "extended",
+        "fd",
+        "unexpected_module",
+    )
+
+    @property
+    def not_data(self) -> int:
+        """Error, remote, extended-id and CAN FD frames."""
+        return self.error_frames + self.remote + self.extended + self.fd
+
     @property
     def rejected(self) -> int:
-        return (
-            self.truncated
-            + self.unknown_id
-            + self.bad_type
-            + self.bad_status
-            + self.not_data
-            + self.unexpected_module
-        )
+        return sum(getattr(self, k) for k in self.REJECT_KINDS)
 
 
 @dataclass(slots=True)
@@ -126,6 +147,9 @@ class _Pending:
     b_oor: int = 0
     b_flags: int = 0
     tb: float = 0.0
+    done_a: bytes | None = None  # frames of the last completed reading (duplicate check)
+    done_b: bytes | None = None
+    done_t: float = 0.0
     counters: ModuleCounters = field(default_factory=ModuleCounters)
 
 
@@ -141,7 +165,8 @@ class PeriodAssembler:
 
     - A then B within ``pair_window_s``: complete (the normal case).
     - A while an A is pending: identical bytes within ``duplicate_window_s`` is a duplicate
-      (ignored); otherwise the pending period is incomplete and the new A replaces it.
+      (ignored); otherwise the pending period is incomplete and the new A replaces it. A frame
+      identical to one of the last completed reading, within the window, is a duplicate too.
     - B with the pending A older than ``pair_window_s``: that A is dropped (incomplete) and the B
       waits as if it came first.
     - B without A: kept for ``pair_window_s``; an A arriving within it completes the reading
@@ -212,7 +237,7 @@ class PeriodAssembler:
     def feed(self, msg: can.Message) -> SkinReading | None:
         """Process one python-can message; the completed reading or None."""
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id or msg.is_fd:
-            return self._reject_not_data(msg.arbitration_id, msg.dlc)
+            return self._reject_not_data(msg)
         return self.feed_raw(msg.arbitration_id, msg.data, msg.timestamp)
 
     def feed_many(self, msgs: Iterable[can.Message]) -> list[SkinReading]:
@@ -224,10 +249,24 @@ class PeriodAssembler:
                 out.append(r)
         return out
 
-    def _reject_not_data(self, can_id: int, dlc: int) -> None:
-        self.counters.frames += 1
-        self.counters.not_data += 1
-        self.last_error = UnknownId("not a standard data frame", can_id, dlc)
+    def _reject_not_data(self, msg: can.Message) -> None:
+        c = self.counters
+        c.frames += 1
+        if msg.is_error_frame:
+            c.error_frames += 1
+            kind = "error frame"
+        elif msg.is_remote_frame:
+            c.remote += 1
+            kind = "remote frame"
+        elif msg.is_fd:
+            c.fd += 1
+            kind = "CAN FD frame"
+        else:
+            c.extended += 1
+            kind = "extended-id frame"
+        self.last_error = NotDataFrame(
+            f"{kind}, skin data are classic standard frames", msg.arbitration_id, msg.dlc
+        )
         return None
 
     def feed_raw(
@@ -238,7 +277,7 @@ class PeriodAssembler:
         c.frames += 1
         # Fast path for well-formed frames; anything else goes through decode_frame, whose
         # exception names what is wrong.
-        kind = data[0] if len(data) >= 8 else -1
+        kind = data[0] if len(data) == 8 else -1
         if not (
             0 <= can_id <= 0x7FF
             and (can_id >> 8) in self._class_set
@@ -250,6 +289,9 @@ class PeriodAssembler:
                 decode_frame(can_id, data, timestamp, self.id_classes, self.strict_status)
             except TruncatedFrame as exc:
                 c.truncated += 1
+                self.last_error = exc
+            except OversizedFrame as exc:
+                c.oversized += 1
                 self.last_error = exc
             except UnknownId as exc:
                 c.unknown_id += 1
@@ -287,6 +329,15 @@ class PeriodAssembler:
     def _pair_a(self, st: _Pending, key: int, cls: int, va: bytes, t: float) -> SkinReading | None:
         mc, c = st.counters, self.counters
         mc.frames_a += 1
+        if (
+            st.a is None
+            and st.b is None
+            and va == st.done_a
+            and abs(t - st.done_t) <= self.duplicate_window_s
+        ):
+            mc.duplicates += 1  # a repeat of the frame that completed the last reading
+            c.duplicates += 1
+            return None
         if st.a is not None:
             if st.a == va and abs(t - st.ta) <= self.duplicate_window_s:
                 mc.duplicates += 1
@@ -310,6 +361,15 @@ class PeriodAssembler:
     ) -> SkinReading | None:
         mc, c = st.counters, self.counters
         mc.frames_b += 1
+        if (
+            st.a is None
+            and st.b is None
+            and vb == st.done_b
+            and abs(t - st.done_t) <= self.duplicate_window_s
+        ):
+            mc.duplicates += 1
+            c.duplicates += 1
+            return None
         if st.a is not None:
             if abs(t - st.ta) <= self.pair_window_s:
                 st.b, st.b_oor, st.b_flags = vb, oor, flags
@@ -331,6 +391,7 @@ class PeriodAssembler:
         assert st.b is not None
         values = np.frombuffer(a + st.b, dtype=np.uint8).copy()
         r = SkinReading(key >> 4, key & 0xF, values, st.b_oor, st.b_flags, t, cls)
+        st.done_a, st.done_b, st.done_t = a, st.b, t
         st.a = st.b = None
         mc = st.counters
         mc.readings += 1

@@ -240,30 +240,56 @@ class BaselineTracker:
         return a
 
     # -- state control --------------------------------------------------------------------
-    def recalibrate(self) -> None:
-        """Forget the baselines and learn them again from the next readings (send unloaded)."""
-        n = self.n
-        self.baseline = np.zeros(n)
-        self._cal_sum = np.zeros(n)
-        self._cal_count = np.zeros(n, dtype=np.int64)
-        self._cal_zero = np.zeros(n, dtype=bool)
-        self._clear_dynamics()
-        self._last_value = np.full(n, -1, dtype=np.int64)
-        self._unchanged_s = np.zeros(n)
-        self._zero_s = np.zeros(n)
-        self._last_t = np.full(n, np.nan)
-        self._onset_ref = np.full(n, np.nan)
-        self._recent.clear()
+    def recalibrate(self, channels: ArrayLike | None = None) -> None:
+        """Forget the baselines and learn them again from the next readings (send unloaded).
 
-    def _clear_dynamics(self) -> None:
+        ``channels``: (N,) bool mask of the channels to recalibrate (e.g. one module that came
+        back after a silence, possibly rebooted with another offset); default all.
+        """
         n = self.n
-        self.contact = np.zeros(n, dtype=bool)
-        self.hard = np.zeros(n, dtype=bool)
-        self._blank_until = np.full(n, -np.inf)
-        self._blank_level = np.zeros(n)
-        self._peak = np.zeros(n)
-        self._quiet_since = np.full(n, np.inf)
-        self._frozen_since = np.full(n, np.inf)
+        if channels is None:
+            self.baseline = np.zeros(n)
+            self._cal_sum = np.zeros(n)
+            self._cal_count = np.zeros(n, dtype=np.int64)
+            self._cal_zero = np.zeros(n, dtype=bool)
+            self._clear_dynamics()
+            self._last_value = np.full(n, -1, dtype=np.int64)
+            self._unchanged_s = np.zeros(n)
+            self._zero_s = np.zeros(n)
+            self._last_t = np.full(n, np.nan)
+            self._onset_ref = np.full(n, np.nan)
+            self._recent.clear()
+            return
+        m = self._mask("channels", channels, False)
+        self.baseline[m] = 0.0
+        self._cal_sum[m] = 0.0
+        self._cal_count[m] = 0
+        self._cal_zero[m] = False
+        self._clear_dynamics(m)
+        self._last_value[m] = -1
+        self._unchanged_s[m] = 0.0
+        self._zero_s[m] = 0.0
+        self._last_t[m] = np.nan
+        self._onset_ref[m] = np.nan
+
+    def _clear_dynamics(self, m: NDArray[np.bool_] | None = None) -> None:
+        if m is None:
+            n = self.n
+            self.contact = np.zeros(n, dtype=bool)
+            self.hard = np.zeros(n, dtype=bool)
+            self._blank_until = np.full(n, -np.inf)
+            self._blank_level = np.zeros(n)
+            self._peak = np.zeros(n)
+            self._quiet_since = np.full(n, np.inf)
+            self._frozen_since = np.full(n, np.inf)
+            return
+        self.contact[m] = False
+        self.hard[m] = False
+        self._blank_until[m] = -np.inf
+        self._blank_level[m] = 0.0
+        self._peak[m] = 0.0
+        self._quiet_since[m] = np.inf
+        self._frozen_since[m] = np.inf
 
     def tare(self) -> bool:
         """Make the current readings the baselines (mean of the last ``tare_window`` readings).

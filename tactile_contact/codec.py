@@ -10,7 +10,8 @@ skin" or class 3 on older firmware), two per triangle per period, 8 bytes each:
   16-bit status word: bit 0 I²C read error, bit 1 no acknowledge to the configuration
   (not connected), bits 4..15 out-of-range flag of channels 0..11.
 
-Decoding raises one :class:`CodecError` subclass per way a frame can be wrong, naming the id,
+Decoding raises one :class:`CodecError` subclass per way a frame can be wrong (and nothing
+else, for any id and any bytes), naming the id,
 DLC, byte index and value. :class:`tactile_contact.assembler.PeriodAssembler`
 catches them, counts them and never lets them escape.
 """
@@ -74,8 +75,16 @@ class TruncatedFrame(CodecError):
     """DLC below 8 (the frame lacks channels or the status word)."""
 
 
+class OversizedFrame(CodecError):
+    """More than 8 data bytes: not a classic CAN frame (skin frames have exactly 8)."""
+
+
 class UnknownId(CodecError):
-    """Id outside the accepted skin classes (or extended / remote / error frame)."""
+    """Id outside the accepted skin classes."""
+
+
+class NotDataFrame(CodecError):
+    """An error, remote, extended-id or CAN FD frame (skin data are classic standard frames)."""
 
 
 class BadFrameType(CodecError):
@@ -143,6 +152,8 @@ def decode_frame(
     cls, board, triangle = parse_id(can_id, id_classes, dlc)
     if dlc < 8:
         raise TruncatedFrame(f"{dlc} data bytes, skin frames have 8", can_id, dlc, value=dlc)
+    if dlc > 8:
+        raise OversizedFrame(f"{dlc} data bytes, classic frames have at most 8", can_id, dlc)
     kind = data[0]
     if kind == FRAME_A:
         return SkinFrame(cls, board, triangle, FRAME_A, bytes(data[1:8]), 0, 0, timestamp)

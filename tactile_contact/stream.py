@@ -8,7 +8,12 @@ reading (or ``max_wait_s`` has passed since the first one) the patch's
 :class:`PatchFrame` comes out. A module that delivers a second reading before its patch was
 published forces the publication first, so no complete reading is ever overwritten. Modules
 without a new reading are flagged STALE, never left out; a module silent for longer than
-``module_timeout_s`` is no longer waited for.
+``module_timeout_s`` is no longer waited for, its channels are flagged STALE and DEAD with ΔC 0
+(no reading to use) and it is reported silent; when it speaks again its channels are
+re-baselined (a module that rebooted may have another offset) and it is reported back.
+Error frames drive :class:`~tactile_contact.bus_health.ControllerState` (bus-off and friends).
+Changes of state (module silent / back, controller state) are queued in :attr:`SkinStream.events`
+for the node to log and report at once.
 
 Times: ``stamp`` values are the messages' receive times (python-can ``timestamp``, s);
 ``now`` arguments are a monotonic clock [s] used only for waiting and rates.
@@ -27,8 +32,18 @@ from numpy.typing import NDArray
 
 from tactile_contact import assembler, codec
 from tactile_contact import baseline as bl
+from tactile_contact.bus_health import BUS_OFF, ERROR_ACTIVE, BusErrorPolicy, ControllerState
 from tactile_contact.layout import PatchLayout
 from tactile_contact.modules import CHANNELS_PER_MODULE, taxel_id
+
+__all__ = [
+    "BusErrorPolicy",
+    "DiagStatus",
+    "PatchFrame",
+    "ReplayBus",
+    "SkinStream",
+    "open_bus",
+]
 
 SKIN_MASK = 0x700
 #: Readings more than this fraction of a period apart belong to different periods.
@@ -110,46 +125,6 @@ def open_bus(
     return can.Bus(**kwargs)
 
 
-@dataclass
-class BusErrorPolicy:
-    """Counts bus errors; asks for a reconnect after ``reconnect_after`` consecutive ones."""
-
-    reconnect_after: int
-    errors: int = 0
-    consecutive: int = 0
-    reconnects: int = 0
-    reconnect_attempts: int = 0
-    internal_errors: int = 0
-    last_error: str = ""
-    _errors_at_last_report: int = 0
-
-    def error(self, exc: BaseException) -> bool:
-        """Record one error; True when the bus should be closed and reopened."""
-        self.errors += 1
-        self.consecutive += 1
-        self.last_error = f"{type(exc).__name__}: {exc}"
-        if self.consecutive >= self.reconnect_after:
-            self.consecutive = 0
-            return True
-        return False
-
-    def ok(self) -> None:
-        self.consecutive = 0
-
-    def values(self) -> dict[str, object]:
-        """Diagnostic key/values; ``bus_errors_in_window`` counts errors since the last call."""
-        window = self.errors - self._errors_at_last_report
-        self._errors_at_last_report = self.errors
-        return {
-            "bus_errors": self.errors,
-            "bus_errors_in_window": window,
-            "reconnects": self.reconnects,
-            "reconnect_attempts": self.reconnect_attempts,
-            "internal_errors": self.internal_errors,
-            "last_bus_error": self.last_error,
-        }
-
-
 @dataclass(frozen=True)
 class PatchFrame:
     """One patch reading, ready to become a TaxelArray (arrays in layout channel order)."""
@@ -184,6 +159,11 @@ class _ModuleState:
     missed_periods: int = 0
     readings_at_report: int = 0
     report_time: float = math.nan
+    silent: bool = False  # reported silent (no reading for longer than the module timeout)
+    silent_since: float = math.nan  # monotonic time of its last reading before the silence [s]
+    returns: int = 0  # times it came back after a silence (each one re-baselines it)
+    rebaselining: bool = False
+    rate_hz: float = 0.0  # readings per second over the last diagnostics window
 
 
 @dataclass
@@ -266,6 +246,9 @@ class SkinStream:
             strict_status=strict_status,
         )
         self.last_error: codec.CodecError | None = None
+        self.controller = ControllerState()
+        #: (diagnostic level, text) of state changes since the caller last emptied the list.
+        self.events: list[tuple[int, str]] = []
         self._report_time = math.nan
         self._start: float | None = None  # monotonic time of the first reading [s]
 
@@ -320,6 +303,8 @@ class SkinStream:
         reading = a.feed(msg)
         if a.last_error is not None:
             self.last_error, a.last_error = a.last_error, None
+        if msg.is_error_frame or self.controller.state == BUS_OFF:
+            self._controller(msg, now)
         if reading is None:
             return []
         st, i = self._where[reading.key]
@@ -334,13 +319,24 @@ class SkinStream:
             if gap > 1.5 * self.period_s:
                 m.missed_periods += max(round(gap / self.period_s) - 1, 0)
         sl = slice(CHANNELS_PER_MODULE * i, CHANNELS_PER_MODULE * (i + 1))
+        if self._start is None:
+            self._start = now
+        was_live = self._live(m, now)
+        if not was_live and math.isfinite(m.last_seen):
+            self._module_back(st, m, sl, now)
+        elif m.silent:  # never heard until now
+            m.silent = False
+            self.events.append(
+                (
+                    0,
+                    f"patch {st.layout.name}: module board {m.board} triangle {m.triangle} "
+                    "heard for the first time",
+                )
+            )
         st.raw[sl] = reading.values
         st.oor[sl] = reading.out_of_range if reading.oor_mask else False
         st.err[sl] = bool(reading.error_flags)
         st.seen[sl] = True
-        if self._start is None:
-            self._start = now
-        was_live = self._live(m, now)
         m.fresh, m.last_seen, m.last_stamp = True, now, reading.timestamp
         st.n_fresh += 1
         st.first_pending = min(st.first_pending, now)
@@ -355,6 +351,56 @@ class SkinStream:
             out.append(self._emit(st))
         return out
 
+    def _controller(self, msg: can.Message, now: float) -> None:
+        if msg.is_error_frame:
+            changed = self.controller.error_frame(msg, now)
+            if changed is not None:
+                level = 2 if changed == BUS_OFF else (0 if changed == ERROR_ACTIVE else 1)
+                self.events.append(
+                    (
+                        level,
+                        f"CAN controller {changed} (error frame, class 0x{msg.arbitration_id:03X})",
+                    )
+                )
+        elif not msg.is_remote_frame and self.controller.data_frame(now) is not None:
+            self.events.append((0, "CAN controller back from bus-off: data frames again"))
+
+    def _module_back(self, st: _PatchState, m: _ModuleState, sl: slice, now: float) -> None:
+        """A module heard again after more than the timeout: re-baseline its channels."""
+        mask = np.zeros(st.tracker.n, dtype=bool)
+        mask[sl] = True
+        st.tracker.recalibrate(mask)
+        m.returns += 1
+        m.rebaselining = True
+        m.silent = False
+        self.events.append(
+            (
+                0,
+                f"patch {st.layout.name}: module board {m.board} triangle {m.triangle} back "
+                f"after {now - m.last_seen:.2f} s of silence; re-baselining its taxels",
+            )
+        )
+
+    def _check_silence(self, now: float) -> None:
+        """Report modules that fell silent (once each) since the last check."""
+        for st in self._patches:
+            for m in st.modules:
+                if not m.silent and not self._live(m, now) and self._start is not None:
+                    m.silent = True
+                    m.silent_since = m.last_seen
+                    heard = (
+                        f"no reading for {now - m.last_seen:.2f} s"
+                        if math.isfinite(m.last_seen)
+                        else "never heard"
+                    )
+                    self.events.append(
+                        (
+                            2,
+                            f"patch {st.layout.name}: module board {m.board} triangle "
+                            f"{m.triangle} silent ({heard}); its taxels are flagged invalid",
+                        )
+                    )
+
     def _live(self, m: _ModuleState, now: float) -> bool:
         """Waited for: heard within the timeout, or never heard yet but the stream is young."""
         if math.isfinite(m.last_seen):
@@ -362,7 +408,9 @@ class SkinStream:
         return self._start is not None and now - self._start <= self.module_timeout_s
 
     def poll(self, now: float) -> list[PatchFrame]:
-        """Patch readings whose max wait has passed (call at least every few ms)."""
+        """Patch readings whose max wait has passed (call at least every few ms); also notices
+        modules that fell silent (:attr:`events`)."""
+        self._check_silence(now)
         return [self._emit(st) for st in self._patches if now - st.first_pending >= self.max_wait_s]
 
     def _emit(self, st: _PatchState) -> PatchFrame:
@@ -372,6 +420,17 @@ class SkinStream:
         )
         status = res.status.copy()
         status[~st.seen] &= np.uint8(~bl.STATUS_SATURATED & 0xFF)  # never heard: no value at all
+        delta_c = res.delta_c
+        silent = [m.silent for m in st.modules]
+        if any(silent):  # no reading for longer than the timeout: nothing to use
+            gone = np.repeat(silent, CHANNELS_PER_MODULE)
+            status[gone] |= np.uint8(bl.STATUS_STALE | bl.STATUS_DEAD)
+            delta_c = np.where(gone, 0.0, delta_c)
+        for m, cal in zip(
+            st.modules, st.tracker.calibrated_mask.reshape(-1, CHANNELS_PER_MODULE), strict=True
+        ):
+            if m.rebaselining and cal.all():
+                m.rebaselining = False
         for m in st.modules:
             m.fresh = False
         st.n_fresh = 0
@@ -386,7 +445,7 @@ class SkinStream:
             frame_id=st.layout.frame_id,
             stamp=stamp,
             taxel_ids=st.taxel_ids,
-            delta_c=res.delta_c.astype(np.float32),
+            delta_c=delta_c.astype(np.float32),
             raw=st.raw.tobytes(),
             status=status.tobytes(),
         )
@@ -399,17 +458,14 @@ class SkinStream:
         return done, missing
 
     # -- health ---------------------------------------------------------------------------
-    def diagnostics(self, now: float) -> list[DiagStatus]:
+    def diagnostics(self, now: float, window: bool = True) -> list[DiagStatus]:
         """Bus-wide frame counters, then one status per patch and per module.
 
-        Rates are over the time since the previous call (monotonic ``now`` [s]).
+        Rates are over the time since the previous call with ``window`` True (monotonic
+        ``now`` [s]); an extra report (``window`` False, e.g. on a state change) repeats them.
         """
         c = self.assembler.counters
-        rejected = {
-            f"rejected_{k}": getattr(c, k)
-            for k in ("truncated", "unknown_id", "bad_type", "bad_status", "not_data")
-        }
-        rejected["rejected_unexpected_module"] = c.unexpected_module
+        rejected = {f"rejected_{k}": getattr(c, k) for k in c.REJECT_KINDS}
         frames = {
             "frames": c.frames,
             "readings": c.readings,
@@ -429,13 +485,17 @@ class SkinStream:
             )
         ]
         per_module = self.assembler.module_counters()
+        self._check_silence(now)
         dt = now - self._report_time
-        self._report_time = now
+        if window:
+            self._report_time = now
         for st in self._patches:
             out.append(self._patch_status(st))
             for m in st.modules:
                 out.append(
-                    self._module_status(st, m, per_module.get((m.board, m.triangle)), now, dt)
+                    self._module_status(
+                        st, m, per_module.get((m.board, m.triangle)), now, dt if window else None
+                    )
                 )
         return out
 
@@ -448,18 +508,29 @@ class SkinStream:
                 for k in kinds:
                     if r.startswith(k.replace("_", " ")):
                         kinds[k].append(f"0x{tid:03X}")
-        silent = [f"{m.board}/{m.triangle}" for m in st.modules if not math.isfinite(m.last_seen)]
-        level = 1 if bad else 0
-        msg = f"{len(bad)} bad taxels" if bad else "ok"
-        if not st.tracker.calibrated:
-            msg += ", calibrating"
+        never = [f"{m.board}/{m.triangle}" for m in st.modules if not math.isfinite(m.last_seen)]
+        silent = [f"{m.board}/{m.triangle}" for m in st.modules if m.silent]
+        again = [f"{m.board}/{m.triangle}" for m in st.modules if m.rebaselining]
+        level = 1 if bad or silent else 0
+        parts = []
+        if silent:
+            parts.append(f"silent modules (board/triangle) {' '.join(silent)}: taxels invalid")
+        if bad:
+            parts.append(f"{len(bad)} bad taxels")
+        if again:
+            parts.append(f"re-baselining modules {' '.join(again)}")
+        elif not st.tracker.calibrated:
+            parts.append("calibrating")
+        msg = ", ".join(parts) if parts else "ok"
         values: dict[str, object] = {
             "published": st.published,
             "published_with_stale_modules": st.stale_publications,
             "calibrated": st.tracker.calibrated,
             "bad_taxels": len(bad),
             **{f"{k}_taxels": " ".join(v) for k, v in kinds.items()},
-            "never_heard_modules": " ".join(silent),
+            "never_heard_modules": " ".join(never),
+            "silent_modules": " ".join(silent),
+            "rebaselining_modules": " ".join(again),
         }
         return DiagStatus(f"patch {st.layout.name}", level, msg, values, st.layout.frame_id)
 
@@ -469,13 +540,15 @@ class SkinStream:
         m: _ModuleState,
         mc: assembler.ModuleCounters | None,
         now: float,
-        dt: float,
+        dt: float | None,
     ) -> DiagStatus:
         readings = mc.readings if mc is not None else 0
-        rate = (readings - m.readings_at_report) / dt if dt > 0 else 0.0
-        m.readings_at_report = readings
+        if dt is not None:
+            m.rate_hz = (readings - m.readings_at_report) / dt if dt > 0 else 0.0
+            m.readings_at_report = readings
+        rate = m.rate_hz
         age = now - m.last_seen
-        silent = not age <= self.module_timeout_s
+        silent = m.silent
         drops = m.missed_periods + ((mc.incomplete + mc.orphan_b) if mc is not None else 0)
         values: dict[str, object] = {
             "rate_hz": float(rate),
@@ -489,9 +562,13 @@ class SkinStream:
             "last_error_flags": mc.last_error_flags if mc is not None else 0,
             "stale": silent,
             "seconds_since_last_reading": float(age) if math.isfinite(age) else -1.0,
+            "returns_after_silence": m.returns,
+            "rebaselining": m.rebaselining,
         }
         if silent:
             level, msg = 2, "silent" if readings else "never heard"
+        elif m.rebaselining:
+            level, msg = 0, f"{rate:.1f} Hz, back after a silence: re-baselining"
         elif mc is not None and mc.last_error_flags:
             level, msg = 1, f"module error flags 0x{mc.last_error_flags:X}"
         else:

@@ -228,7 +228,9 @@ def test_non_data_frames_are_counted() -> None:
         can.Message(is_error_frame=True),
     ]
     assert asm.feed_many(bad) == []
-    assert asm.counters.not_data == 3 and asm.counters.rejected == 3
+    c = asm.counters
+    assert (c.extended, c.remote, c.error_frames, c.fd) == (1, 1, 1, 0)
+    assert c.not_data == 3 and c.rejected == 3
 
 
 def test_module_filter() -> None:
@@ -366,5 +368,5 @@ def test_any_bytes_decode_or_raise_only_the_codecs_error(can_id, data, strict, c
     except CodecError as e:
         assert str(e)  # the message names the problem
     else:
-        assert len(data) >= 8 and data[0] in (FRAME_A, FRAME_B)
+        assert len(data) == 8 and data[0] in (FRAME_A, FRAME_B)
         assert len(frame.values) == (7 if data[0] == FRAME_A else 5)

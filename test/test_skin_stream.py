@@ -152,13 +152,18 @@ def test_bad_frames_are_counted_per_reason() -> None:
         can.Message(arbitration_id=0x4F0, data=b"\x40" + bytes(7), is_extended_id=False),
         can.Message(arbitration_id=0x300, data=b"\x40" + bytes(7), is_extended_id=False),
         can.Message(arbitration_id=0x400, is_remote_frame=True, is_extended_id=False),
+        can.Message(arbitration_id=0x400, data=b"\x40" + bytes(11), is_extended_id=False),
+        can.Message(arbitration_id=0x400, data=b"\x40" + bytes(11), is_fd=True),
+        can.Message(arbitration_id=0x400, data=b"\x40" + bytes(7), is_extended_id=True),
+        can.Message(arbitration_id=0x020, is_error_frame=True, is_extended_id=False),
     ]
     for m in bad:
         assert s.feed(m, now=0.0) == []
     assert s.last_error is not None
     values = s.diagnostics(now=0.0)[0].values
-    assert values["rejected"] == 5
-    for reason in ("truncated", "bad_type", "unexpected_module", "unknown_id", "not_data"):
+    assert values["rejected"] == len(bad)
+    kinds = ("truncated", "bad_type", "unexpected_module", "unknown_id", "remote", "oversized")
+    for reason in (*kinds, "fd", "extended", "error_frames"):
         assert values[f"rejected_{reason}"] == 1, reason
 
 
