@@ -182,10 +182,15 @@ def diagnostic_status(
 
 def run_node(name: str, factory: Callable[[], Node], args: list[str] | None = None) -> None:
     """Spin the node ``factory()`` makes until Ctrl-C or shutdown; if it cannot even be
-    constructed (e.g. a parameter out of range), print ``ERROR: <name>: …`` and exit 1."""
-    rclpy.init(args=args)
+    constructed (e.g. a parameter out of range), print ``ERROR: <name>: …`` and exit 1.
+
+    Ctrl-C at any moment (during start-up too) ends it quietly: the executor is shut down,
+    then the node destroyed (its threads joined, its bus closed), then the context.
+    """
     node = None
+    executor = None
     try:
+        rclpy.init(args=args)
         node = factory()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
@@ -202,6 +207,8 @@ def run_node(name: str, factory: Callable[[], Node], args: list[str] | None = No
         # rclpy's shutdown puts back the handler it found, so ignore again after it: the
         # process is on its way out.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        if executor is not None:
+            executor.shutdown(timeout_sec=1.0)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -20,6 +20,7 @@ The subscription keeps only the newest frame, so a slow frame never queues old o
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -35,6 +36,7 @@ from std_msgs.msg import Header
 from threadpoolctl import threadpool_limits
 from visualization_msgs.msg import MarkerArray
 
+from tactile_contact.bundle import load_bundle
 from tactile_contact.detection import NoiseTracker
 from tactile_contact.msg import ContactState, GridGeometry, TaxelArray
 from tactile_contact.nodes import convert
@@ -56,6 +58,9 @@ from tactile_contact.reconstruction import Reconstructor
 # The online products are small (taxels × cells, a few hundred kB): extra BLAS threads only
 # spin-wait between frames (measured: 1.25 instead of 0.48 cores for one patch at 50 Hz).
 threadpool_limits(limits=1, user_api="blas")
+
+#: A fault of one kind on one patch is logged at most once per this many seconds.
+LOG_THROTTLE_S = 5.0
 
 OUTPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
 
@@ -89,8 +94,12 @@ class PatchStats:
     skipped_images: int = 0
     skipped_visualization: int = 0
     bad_frames: int = 0
+    foreign_frames: int = 0
+    nonfinite_frames: int = 0
+    nonfinite_readings: int = 0
     out_of_range: int = 0
     unpublishable: int = 0
+    internal_errors: int = 0
     last_error: str = ""
     latency_s: deque = field(default_factory=lambda: deque(maxlen=1000))
     stage_s: dict = field(default_factory=dict)
@@ -99,22 +108,42 @@ class PatchStats:
         self.stage_s.setdefault(stage, deque(maxlen=1000)).append(seconds)
 
 
+def check_result(result: Any) -> None:
+    """Refuse a result that no message may carry: anything non-finite, a negative force, area
+    or peak pressure (raises :class:`convert.NonFiniteError`, so nothing of the frame goes out).
+    """
+    values = [result.total_force, result.contact_area, result.peak_pressure, *result.cop]
+    values += [x for c in result.contacts for x in (c.force, c.radius, *c.center)]
+    if not np.all(np.isfinite(values)):
+        raise convert.NonFiniteError("contact summary: non-finite value(s); not published")
+    forces = [result.total_force, result.contact_area, result.peak_pressure]
+    forces += [x for c in result.contacts for x in (c.force, c.radius)]
+    if min(forces) < 0.0:
+        raise convert.NonFiniteError(
+            f"contact summary: negative force, area, pressure or radius ({min(forces):.3g}); "
+            "not published"
+        )
+    for name in ("traction", "deflection"):
+        field_ = getattr(result, name)
+        if field_ is not None and not np.all(np.isfinite(field_)):
+            raise convert.NonFiniteError(f"{name}: non-finite value(s); not published")
+
+
 class PatchPipeline:
     """Publishers, the reconstructor and the taxel mapping of one patch."""
 
-    def __init__(self, node: Node, recon: Reconstructor, bundle: Path) -> None:
+    def __init__(
+        self, node: Node, recon: Reconstructor, bundle: Path, signature: tuple = ()
+    ) -> None:
         self.node = node
-        self.recon = recon
         self.bundle = bundle
         self.name: str = recon.patch
         self.frame_id: str = recon.frame_id
         self.stats = PatchStats()
-        # Each taxel's noise, learnt from frames without contact; it sets the detection
-        # threshold (tactile_contact.detection). Floor: the bare rounding of one count.
-        self.noise = NoiseTracker(recon.default_noise / np.sqrt(2.0), start=recon.default_noise)
-        self._ids = np.asarray(recon.taxel_ids, dtype=np.int64)
-        self._perm_key: tuple[int, ...] | None = None
-        self._perm: np.ndarray | None = None
+        self.signature = signature  # of the bundle folder when loaded (bundle_signature)
+        self.bundle_problem = ""  # why the bundle on disk is not the one in use ("" if it is)
+        self.reloads = 0
+        self._logged: dict[str, float] = {}  # fault kind → monotonic time last logged
         p = self.name
         self.pub_contact = node.create_publisher(ContactState, f"{p}/contact", OUTPUT_QOS)
         self.pub_traction = node.create_publisher(Image, f"{p}/traction", OUTPUT_QOS)
@@ -132,13 +161,24 @@ class PatchPipeline:
         # queueing them, so what it publishes is always the newest reading.
         input_qos = QoSProfile(depth=node.queue_depth, reliability=ReliabilityPolicy.BEST_EFFORT)
         self.sub = node.create_subscription(TaxelArray, f"{p}/taxels", self.on_taxels, input_qos)
+        self.use(recon)
+
+    def use(self, recon: Reconstructor) -> None:
+        """Serve with ``recon`` from now on (at start, and when the bundle was replaced)."""
+        self.recon = recon
+        # Each taxel's noise, learnt from frames without contact; it sets the detection
+        # threshold (tactile_contact.detection). Floor: the bare rounding of one count.
+        self.noise = NoiseTracker(recon.default_noise / np.sqrt(2.0), start=recon.default_noise)
+        self._ids = np.asarray(recon.taxel_ids, dtype=np.int64)
+        self._perm_key: tuple[int, ...] | None = None
+        self._perm: np.ndarray | None = None
         header = Header(frame_id=self.frame_id)
-        header.stamp = node.get_clock().now().to_msg()
+        header.stamp = self.node.get_clock().now().to_msg()
         for kind, grid in (
             ("traction", recon.traction_grid),
             ("deflection", recon.deflection_grid),
         ):
-            self.pub_geometry[kind].publish(convert.grid_geometry(grid, kind, p, header))
+            self.pub_geometry[kind].publish(convert.grid_geometry(grid, kind, self.name, header))
 
     def _permutation(self, ids: np.ndarray) -> np.ndarray:
         """Index into the message arrays for each bundle taxel (cached per id order)."""
@@ -157,10 +197,38 @@ class PatchPipeline:
         return self._perm
 
     def on_taxels(self, msg: TaxelArray) -> None:
-        """One frame: map, solve what is wanted, publish. Never raises into the executor."""
+        """One frame: map, solve what is wanted, publish. Never raises into the executor:
+        an exception would end the executor's spin and with it every other patch."""
+        try:
+            self._on_taxels(msg)
+        except Exception as exc:
+            self.stats.internal_errors += 1
+            self._fault("internal error", f"{type(exc).__name__}: {exc}; frame dropped")
+
+    def _fault(self, kind: str, text: str, warn: bool = False) -> None:
+        """Record a fault for /diagnostics and log it (once per 5 s per patch and kind)."""
+        self.stats.last_error = f"{kind}: {text}"
+        now = time.monotonic()
+        if now - self._logged.get(kind, -math.inf) < LOG_THROTTLE_S:
+            return
+        self._logged[kind] = now
+        # (rclpy keys its loggers by call site, each with one severity: two call sites)
+        if warn:
+            self.node.get_logger().warning(f"patch {self.name}: {kind}: {text}")
+        else:
+            self.node.get_logger().error(f"patch {self.name}: {kind}: {text}")
+
+    def _on_taxels(self, msg: TaxelArray) -> None:
         stats = self.stats
         stats.frames += 1
         t0 = time.perf_counter()
+        if msg.patch and msg.patch != self.name:
+            stats.foreign_frames += 1
+            self._fault(
+                "frame of another patch",
+                f"TaxelArray of patch {msg.patch!r} on {self.sub.topic_name}; ignored",
+            )
+            return
         try:
             n = len(msg.taxel_ids)
             if not (len(msg.delta_c) == len(msg.status) == n):
@@ -173,12 +241,16 @@ class PatchPipeline:
             status = np.asarray(msg.status, dtype=np.uint8)[perm]
         except ValueError as exc:
             stats.bad_frames += 1
-            stats.last_error = str(exc)
-            self.node.get_logger().error(
-                f"patch {self.name}: bad TaxelArray: {exc}", throttle_duration_sec=5.0
-            )
+            self._fault("bad TaxelArray", str(exc))
             return
-        valid = ((status & _UNUSABLE) == 0) & np.isfinite(delta_c)
+        finite = np.isfinite(delta_c)
+        if not finite.all():
+            # NaN or inf cannot come from the driver: left out of the solve, said, counted.
+            bad = int(np.count_nonzero(~finite))
+            stats.nonfinite_frames += 1
+            stats.nonfinite_readings += bad
+            self._fault("non-finite ΔC", f"{bad} taxel(s) NaN or inf; left out", warn=True)
+        valid = ((status & _UNUSABLE) == 0) & finite
         want_deflection = self.pub_deflection.get_subscription_count() > 0
         want_traction = (
             self.pub_traction.get_subscription_count() + self.pub_cloud.get_subscription_count()
@@ -201,12 +273,11 @@ class PatchPipeline:
             # Readings no 8-bit value gives: the driver and the bundle disagree on the
             # count→farad gain or shift. Said, counted, and the other taxels still solved.
             stats.out_of_range += out_of_range
-            stats.last_error = (
+            self._fault(
+                "out of range",
                 f"{out_of_range} taxel(s) read beyond the converter's full scale "
-                f"(|ΔC| > {self.recon.full_scale:.3g} F) or below −C0; left out"
-            )
-            self.node.get_logger().warning(
-                f"patch {self.name}: {stats.last_error}", throttle_duration_sec=5.0
+                f"(|ΔC| > {self.recon.full_scale:.3g} F) or below −C0; left out",
+                warn=True,
             )
         stats.time("map", t1 - t0)
         stats.time("solve", t2 - t1)
@@ -226,6 +297,7 @@ class PatchPipeline:
         stats = self.stats
         header = Header(stamp=msg.header.stamp, frame_id=self.frame_id)
         try:
+            check_result(result)
             if result.traction is not None and self.pub_traction.get_subscription_count() > 0:
                 self.pub_traction.publish(convert.grid_image("traction", result.traction, header))
             else:
@@ -255,8 +327,7 @@ class PatchPipeline:
             )
         except convert.NonFiniteError as exc:
             stats.unpublishable += 1
-            stats.last_error = str(exc)
-            self.node.get_logger().error(f"patch {self.name}: {exc}", throttle_duration_sec=5.0)
+            self._fault("not published", str(exc))
 
     def _publish_visualization(
         self, header: Header, result: Any, delta_c: np.ndarray, valid: np.ndarray
@@ -299,8 +370,14 @@ class PatchPipeline:
             "skipped_images": s.skipped_images,
             "skipped_visualization": s.skipped_visualization,
             "bad_frames": s.bad_frames,
+            "foreign_frames": s.foreign_frames,
+            "nonfinite_frames": s.nonfinite_frames,
+            "nonfinite_readings": s.nonfinite_readings,
             "out_of_range_readings": s.out_of_range,
             "unpublishable": s.unpublishable,
+            "internal_errors": s.internal_errors,
+            "bundle_reloads": self.reloads,
+            "bundle_problem": self.bundle_problem,
             "noise_median_um": float(np.median(self.noise.sigma) * 1e6),
             "noise_max_um": float(np.max(self.noise.sigma) * 1e6),
             "noise_frames": self.noise.frames_used,
@@ -316,13 +393,48 @@ class PatchPipeline:
             values["latency_median_ms"] = float(np.median(s.latency_s) * 1e3)
             values["latency_p99_ms"] = float(np.percentile(s.latency_s, 99) * 1e3)
         level, message = OK, "ok"
-        if s.bad_frames or s.unpublishable or s.out_of_range:
+        faults = (
+            s.bad_frames,
+            s.foreign_frames,
+            s.nonfinite_frames,
+            s.unpublishable,
+            s.out_of_range,
+            s.internal_errors,
+        )
+        if any(faults):
             level, message = WARN, s.last_error
         if s.frames == 0:
             level, message = WARN, "no taxel frames received yet"
+        if self.bundle_problem:
+            level = ERROR if "refused" in self.bundle_problem else max(level, WARN)
+            message = f"{self.bundle_problem}; {message}"
         return diagnostic_status(
             f"contact_reconstruction: {self.name}", level, message, values, self.name
         )
+
+
+def load_reconstructor(path: Path) -> Reconstructor:
+    """A Reconstructor of the bundle at ``path``, its arrays read into memory.
+
+    Not memory-mapped: a bundle file overwritten in place while mapped would crash the process
+    (SIGBUS) at the next frame; read, the node keeps what it checked and loaded.
+    """
+    return Reconstructor(load_bundle(path, mmap=False))
+
+
+def bundle_signature(path: Path) -> tuple:
+    """What changes when a bundle folder is deleted, replaced or rewritten (() if missing)."""
+    try:
+        folder = path.stat()
+        files = sorted(path.iterdir())
+        return (folder.st_ino, *((f.name, *_stat(f)) for f in files))
+    except OSError:
+        return ()
+
+
+def _stat(f: Path) -> tuple[int, int, int]:
+    st = f.stat()
+    return st.st_ino, st.st_mtime_ns, st.st_size
 
 
 class ContactReconstructionNode(Node):
@@ -375,14 +487,18 @@ class ContactReconstructionNode(Node):
         log_parameters(self, PARAMETERS)
         self.load_errors: dict[str, str] = {}
         self.pipelines: dict[str, PatchPipeline] = {}
-        for name, path in self._bundle_paths(requested).items():
+        self._refused: dict[Path, tuple] = {}  # bundle → signature of the refused version
+        self._paths = self._bundle_paths(requested)
+        for name, path in self._paths.items():
+            sig = bundle_signature(path)
             try:
-                recon = Reconstructor.from_bundle(path)
+                recon = load_reconstructor(path)
             except Exception as exc:  # every refusal is reported; other patches go on
                 self.load_errors[name] = f"{path}: {exc}"
+                self._refused[path] = sig
                 self.get_logger().error(f"patch {name}: bundle refused: {path}: {exc}")
                 continue
-            self.pipelines[recon.patch] = PatchPipeline(self, recon, path)
+            self.pipelines[recon.patch] = PatchPipeline(self, recon, path, sig)
             self.get_logger().info(
                 f"patch {recon.patch}: {len(recon.taxel_ids)} taxels, "
                 f"traction grid {recon.traction_grid.shape}, bundle {path}"
@@ -400,7 +516,70 @@ class ContactReconstructionNode(Node):
             return {}
         return {p.name: p for p in sorted(self.bundles_dir.iterdir()) if p.is_dir()}
 
+    def watch_bundles(self) -> None:
+        """Notice bundles deleted or replaced on disk since they were loaded.
+
+        A replaced bundle is loaded and checked first; only a good one replaces the one in
+        use (a refused one is reported and the loaded copy goes on serving). A deleted one
+        is reported; the copy in memory goes on serving. A bundle refused at start is tried
+        again when it changes.
+        """
+        log = self.get_logger()
+        for pipe in list(self.pipelines.values()):
+            sig = bundle_signature(pipe.bundle)
+            if sig == pipe.signature or sig == self._refused.get(pipe.bundle):
+                continue
+            if not sig:
+                if not pipe.bundle_problem.startswith("bundle deleted"):
+                    pipe.bundle_problem = (
+                        f"bundle deleted on disk ({pipe.bundle}); serving the copy loaded before"
+                    )
+                    log.warning(f"patch {pipe.name}: {pipe.bundle_problem}")
+                continue
+            try:
+                recon = load_reconstructor(pipe.bundle)
+                if recon.patch != pipe.name:
+                    raise ValueError(f"it is now a bundle of patch {recon.patch!r}")
+            except Exception as exc:
+                self._refused[pipe.bundle] = sig
+                pipe.bundle_problem = (
+                    f"bundle replaced on disk by one refused ({exc}); serving the copy loaded "
+                    "before"
+                )
+                log.error(f"patch {pipe.name}: {pipe.bundle_problem}")
+                continue
+            pipe.use(recon)
+            pipe.signature, pipe.bundle_problem = sig, ""
+            pipe.reloads += 1
+            self._refused.pop(pipe.bundle, None)
+            log.info(f"patch {pipe.name}: bundle {pipe.bundle} replaced on disk; reloaded")
+        for name, path in self._paths.items():
+            if name not in self.load_errors:
+                continue
+            sig = bundle_signature(path)
+            if not sig or sig == self._refused.get(path):
+                continue
+            try:
+                recon = load_reconstructor(path)
+            except Exception as exc:
+                self._refused[path] = sig
+                self.load_errors[name] = f"{path}: {exc}"
+                log.error(f"patch {name}: bundle refused: {path}: {exc}")
+                continue
+            if recon.patch in self.pipelines:
+                continue
+            del self.load_errors[name]
+            self._refused.pop(path, None)
+            self.pipelines[recon.patch] = PatchPipeline(self, recon, path, sig)
+            log.info(f"patch {recon.patch}: bundle {path} now loads; serving it")
+
     def publish_diagnostics(self) -> None:
+        try:
+            self.watch_bundles()
+        except Exception as exc:  # never into the executor
+            self.get_logger().error(
+                f"watching bundles: {type(exc).__name__}: {exc}", throttle_duration_sec=5.0
+            )
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [p.diagnostics() for p in self.pipelines.values()]

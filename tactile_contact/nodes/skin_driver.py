@@ -37,6 +37,7 @@ from std_srvs.srv import Trigger
 
 from tactile_contact import codec
 from tactile_contact.baseline import BaselineConfig
+from tactile_contact.bus_health import BUS_OFF, ERROR_PASSIVE, WARNING, Backoff
 from tactile_contact.layout import load_layout
 from tactile_contact.msg import TaxelArray
 from tactile_contact.nodes import common as cm
@@ -84,8 +85,12 @@ PARAMETERS: tuple[tuple[str, Any, str, dict[str, Any]], ...] = (
      {"unit": "s", "float_range": (0.001, 1.0)}),
     ("reconnect_after_errors", 5, "consecutive bus errors that trigger a reconnect",
      {"int_range": (1, 100_000)}),
-    ("reconnect_interval_s", 1.0, "wait between reconnect attempts",
+    ("reconnect_interval_s", 1.0, "first wait before reopening a failed bus; doubles per failure",
      {"unit": "s", "float_range": (0.01, 60.0)}),
+    ("reconnect_max_interval_s", 10.0, "longest wait between attempts to reopen the bus",
+     {"unit": "s", "float_range": (0.01, 600.0)}),
+    ("bus_filter", True, "bus drops other ids (kernel filter on socketcan, error frames pass "
+     "there); false: every frame reaches the driver and is counted by kind", {}),
     ("stamp_source", "can", "header.stamp: CAN receive time or publication time",
      {"choices": ("can", "now")}),
     ("period_ms", 50, "nominal module period (drop estimate; SET_BRD_CFG)",
@@ -150,16 +155,20 @@ class SkinDriver(LifecycleNode):
     def __init__(self, node_name: str = "skin_driver", **kwargs: Any) -> None:
         # State first: a constructor that fails on a bad parameter still gets destroy_node().
         self._lock = threading.Lock()
+        self._diag_lock = threading.Lock()  # the publisher is destroyed under it, used under it
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._bus: Any = None
         self._stream: SkinStream | None = None
         self._policy: BusErrorPolicy | None = None
+        self._backoff: Backoff | None = None
+        self._next_attempt = 0.0  # monotonic time of the next reopen attempt [s]
         self._pubs: dict[str, Publisher] = {}
         self._diag_pub: Publisher | None = None
         self._diag_timer: Timer | None = None
         self._tare_srv: Any = None
         self._params: dict[str, Any] = {}
+        self._finished_logged = False
         super().__init__(node_name, **kwargs)
         for name, default, text, options in PARAMETERS:
             cm.declare_parameter(self, name, default, text, **options)
@@ -220,6 +229,7 @@ class SkinDriver(LifecycleNode):
             strict_status=p["strict_status"],
         )
         self._policy = BusErrorPolicy(p["reconnect_after_errors"])
+        self._backoff = Backoff(p["reconnect_interval_s"], p["reconnect_max_interval_s"])
         bus = self._open_bus()
         if bus is None:
             return FAILURE
@@ -254,7 +264,7 @@ class SkinDriver(LifecycleNode):
                 bitrate=p["bitrate"],
                 replay_file=p["replay_file"],
                 replay_max_gap_s=p["replay_max_gap_s"],
-                can_filters=self._stream.can_filters(),
+                can_filters=self._stream.can_filters() if p["bus_filter"] else None,
             )
         except Exception as exc:  # python-can raises many types for a bus it cannot open
             text = f"cannot open CAN bus {self._bus_name()}: {type(exc).__name__}: {exc}"
@@ -274,6 +284,7 @@ class SkinDriver(LifecycleNode):
                 self._send_config()
             self._drain()
             self._stop.clear()
+            self._finished_logged = False
             self._thread = threading.Thread(target=self._receive_loop, name="skin_rx", daemon=True)
             self._thread.start()
         except Exception as exc:
@@ -285,7 +296,7 @@ class SkinDriver(LifecycleNode):
 
     def _drain(self) -> None:
         """Drop frames queued while inactive (old data must not come out with old stamps)."""
-        if isinstance(self._bus, ReplayBus) or self._stream is None:
+        if isinstance(self._bus, ReplayBus) or self._stream is None or self._bus is None:
             return
         dropped = 0
         while dropped < 1_000_000 and self._bus.recv(0.0) is not None:
@@ -331,9 +342,10 @@ class SkinDriver(LifecycleNode):
         if self._diag_timer is not None:
             self.destroy_timer(self._diag_timer)
             self._diag_timer = None
-        if self._diag_pub is not None:
-            self.destroy_publisher(self._diag_pub)
-            self._diag_pub = None
+        with self._diag_lock:
+            diag_pub, self._diag_pub = self._diag_pub, None
+        if diag_pub is not None:
+            self.destroy_publisher(diag_pub)
         if self._tare_srv is not None:
             self.destroy_service(self._tare_srv)
             self._tare_srv = None
@@ -360,72 +372,116 @@ class SkinDriver(LifecycleNode):
 
     def _receive_loop(self) -> None:
         """Receive, decode and publish until stopped; never raises."""
-        p, stream, policy = self._params, self._stream, self._policy
-        assert stream is not None and policy is not None
-        timeout = p["receive_timeout_s"]
         log = self.get_logger()
-        finished_logged = False
         while not self._stop.is_set():
-            bus = self._bus
-            if bus is None:
-                self._stop.wait(p["reconnect_interval_s"])
-                with self._lock:
-                    policy.reconnect_attempts += 1
-                bus = self._open_bus(reconnecting=True)
-                if bus is None:
-                    continue
-                self._bus = bus
-                with self._lock:
-                    policy.reconnects += 1
-                log.info(f"reconnected to {self._bus_name()}")
             try:
-                msg = bus.recv(timeout)
-            except (can.CanError, OSError) as exc:
-                with self._lock:
-                    reconnect = policy.error(exc)
-                log.warning(
-                    f"CAN bus error ({policy.errors} so far): {type(exc).__name__}: {exc}",
+                self._receive_step()
+            except Exception as exc:  # the thread must outlive any bug: count, say, go on
+                if self._policy is not None:
+                    with self._lock:
+                        self._policy.internal_errors += 1
+                log.error(
+                    f"receive loop: {type(exc).__name__}: {exc}",
                     throttle_duration_sec=WARN_THROTTLE_S,
                 )
-                if reconnect:
-                    log.warning(f"{policy.consecutive} consecutive bus errors: reconnecting")
-                    self._bus = None
-                    with contextlib.suppress(Exception):
-                        bus.shutdown()
-                continue
-            except Exception as exc:  # a broken backend must not kill the thread
-                with self._lock:
-                    policy.internal_errors += 1
-                log.error(
-                    f"unexpected error in receive: {exc!r}", throttle_duration_sec=WARN_THROTTLE_S
-                )
-                self._stop.wait(timeout)
-                continue
-            policy.ok()
-            if msg is None and getattr(bus, "finished", False) and not finished_logged:
-                log.info(f"replay of {p['replay_file']} finished")
-                finished_logged = True
-            try:
-                with self._lock:
-                    now = time.monotonic()
-                    out = stream.feed(msg, now) if msg is not None else []
-                    out += stream.poll(now)
-            except Exception as exc:
-                with self._lock:
-                    policy.internal_errors += 1
-                log.error(f"dropped a frame: {exc!r}", throttle_duration_sec=WARN_THROTTLE_S)
-                continue
-            for frame in out:
-                self._publish(frame)
-            if stream.last_error is not None:
-                log.warning(
-                    f"rejected frame: {stream.last_error}", throttle_duration_sec=WARN_THROTTLE_S
-                )
-                stream.last_error = None
+                self._stop.wait(0.01)
+
+    def _receive_step(self) -> None:
+        """One receive (or one reopen attempt) and what it completes."""
+        p, stream, policy = self._params, self._stream, self._policy
+        assert stream is not None and policy is not None
+        log = self.get_logger()
+        bus = self._bus
+        if bus is None:
+            self._reopen()
+            return
+        try:
+            msg = bus.recv(p["receive_timeout_s"])
+        except (can.CanError, OSError, ValueError) as exc:
+            # OSError: a socketcan interface down (ENETDOWN) or removed (ENODEV); CanError:
+            # python-can's own (a closed bus, an adapter unplugged); ValueError: a backend
+            # that failed to parse what the adapter sent.
+            with self._lock:
+                reconnect = policy.error(exc)
+            log.warning(
+                f"CAN bus error ({policy.errors} so far): {type(exc).__name__}: {exc}",
+                throttle_duration_sec=WARN_THROTTLE_S,
+            )
+            if reconnect:
+                self._drop_bus(f"{p['reconnect_after_errors']} consecutive bus errors")
+            else:
+                self._stop.wait(min(p["receive_timeout_s"], 0.01))
+            return
+        policy.ok()
+        if msg is None and getattr(bus, "finished", False) and not self._finished_logged:
+            log.info(f"replay of {p['replay_file']} finished")
+            self._finished_logged = True
+        with self._lock:
+            now = time.monotonic()
+            out = stream.feed(msg, now) if msg is not None else []
+            out += stream.poll(now)
+            events, stream.events = stream.events, []
+            bus_off = stream.controller.bus_off_since
+        for frame in out:
+            self._publish(frame)
+        if stream.last_error is not None:
+            log.warning(
+                f"rejected frame: {stream.last_error}", throttle_duration_sec=WARN_THROTTLE_S
+            )
+            stream.last_error = None
+        if events:
+            for level, text in events:
+                if level >= cm.ERROR:  # (one severity per rclpy logging call site)
+                    log.error(text)
+                else:
+                    log.info(text)
+            self._publish_diagnostics(window=False)
+        # Bus-off with no data since: reopening re-initialises the controller of most adapters
+        # (socketcan needs `ip link set can0 type can restart-ms 100` to restart by itself).
+        assert self._backoff is not None
+        if bus_off is not None and time.monotonic() - bus_off >= self._backoff.wait_s:
+            with self._lock:
+                stream.controller.bus_off_since = time.monotonic()
+            self._drop_bus("controller bus-off with no data since")
+
+    def _drop_bus(self, why: str) -> None:
+        """Close the bus and schedule a reopen after the backoff wait."""
+        assert self._backoff is not None
+        bus, self._bus = self._bus, None
+        wait = self._backoff.wait_s
+        self._next_attempt = time.monotonic() + wait
+        self.get_logger().warning(f"{why}: closing the bus, reopening in {wait:.2f} s")
+        if bus is not None:
+            with contextlib.suppress(Exception):
+                bus.shutdown()
+        self._publish_diagnostics(window=False)
+
+    def _reopen(self) -> None:
+        """Wait for the next attempt, then try to reopen the bus (backoff on failure)."""
+        assert self._backoff is not None and self._policy is not None
+        delay = self._next_attempt - time.monotonic()
+        if delay > 0:
+            self._stop.wait(min(delay, 0.1))
+            return
+        with self._lock:
+            self._policy.reconnect_attempts += 1
+        bus = self._open_bus(reconnecting=True)
+        if bus is None:
+            self._backoff.failed()
+            self._next_attempt = time.monotonic() + self._backoff.wait_s
+            return
+        self._bus = bus
+        self._backoff.reset()
+        with self._lock:
+            self._policy.reconnects += 1
+            if self._stream is not None:
+                self._stream.assembler.reset()  # half periods from before the gap
+        self.get_logger().info(f"reconnected to {self._bus_name()}")
+        self._publish_diagnostics(window=False)
 
     def _publish(self, f: PatchFrame) -> None:
         pub = self._pubs.get(f.patch)
-        if pub is None:
+        if pub is None or not self.context.ok():
             return
         msg = TaxelArray(patch=f.patch)
         msg.header.frame_id = f.frame_id
@@ -453,29 +509,57 @@ class SkinDriver(LifecycleNode):
         self.get_logger().info(f"tare: {response.message}")
         return response
 
-    def _publish_diagnostics(self) -> None:
-        if self._stream is None or self._diag_pub is None or self._policy is None:
-            return
-        with self._lock:
-            statuses = self._stream.diagnostics(time.monotonic())
-            bus_values = self._policy.values()
-        name = f"{self.get_name()}: CAN bus"
-        bus_open = self._bus is not None
-        finished = bus_open and getattr(self._bus, "finished", False)
-        level = cm.OK if bus_open else cm.ERROR
-        message = "replay finished" if finished else ("open" if bus_open else "closed")
-        values = {"bus": self._bus_name(), "state": self._state_label(), **bus_values}
-        if bus_values["bus_errors_in_window"]:
-            level = max(level, cm.WARN)
-            message += f", {bus_values['bus_errors_in_window']} bus errors"
-        prefix = self.get_name()
-        out = DiagnosticArray()
-        out.header.stamp = self.get_clock().now().to_msg()
-        out.status = [cm.diagnostic_status(name, level, message, values, self._bus_name())] + [
-            cm.diagnostic_status(f"{prefix}: {s.name}", s.level, s.message, s.values, s.hardware_id)
-            for s in statuses
-        ]
-        self._diag_pub.publish(out)
+    def _publish_diagnostics(self, window: bool = True) -> None:
+        """Publish /diagnostics (periodically, and at once on a state change with ``window``
+        False, which leaves the rate windows alone). Safe from any thread."""
+        with self._diag_lock:
+            pub = self._diag_pub
+            if self._stream is None or pub is None or self._policy is None:
+                return
+            if not self.context.ok():
+                return
+            with self._lock:
+                statuses = self._stream.diagnostics(time.monotonic(), window=window)
+                bus_values = self._policy.values(window=window)
+                controller = self._stream.controller.values()
+                state = self._stream.controller.state
+            name = f"{self.get_name()}: CAN bus"
+            bus_open = self._bus is not None
+            finished = bus_open and getattr(self._bus, "finished", False)
+            level = cm.OK if bus_open else cm.ERROR
+            if finished:
+                message = "replay finished"
+            elif bus_open:
+                message = "open"
+            else:
+                wait = max(0.0, self._next_attempt - time.monotonic())
+                tries = bus_values["reconnect_attempts"]
+                message = f"closed, reopening in {wait:.1f} s ({tries} attempts so far)"
+            if state == BUS_OFF:
+                level, message = cm.ERROR, message + ", controller bus-off"
+            elif state in (ERROR_PASSIVE, WARNING):
+                level, message = max(level, cm.WARN), message + f", controller {state}"
+            values = {
+                "bus": self._bus_name(),
+                "state": self._state_label(),
+                **bus_values,
+                **controller,
+                "next_reconnect_wait_s": self._backoff.wait_s if self._backoff else 0.0,
+            }
+            if bus_values["bus_errors_in_window"]:
+                level = max(level, cm.WARN)
+                message += f", {bus_values['bus_errors_in_window']} bus errors"
+            prefix = self.get_name()
+            out = DiagnosticArray()
+            out.header.stamp = self.get_clock().now().to_msg()
+            out.status = [cm.diagnostic_status(name, level, message, values, self._bus_name())]
+            out.status += [
+                cm.diagnostic_status(
+                    f"{prefix}: {s.name}", s.level, s.message, s.values, s.hardware_id
+                )
+                for s in statuses
+            ]
+            pub.publish(out)
 
     def _state_label(self) -> str:
         # rclpy's LifecycleNode offers the state only through its ~/get_state service (a call
