@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from test.rosutil import spin_until
 
@@ -266,3 +268,248 @@ def test_a_broken_bundle_is_refused_and_the_others_still_served(
     assert levels["contact_reconstruction: broken"] == bytes([2])
     rig.send(np.zeros(len(rig.ids)))
     rig.close()
+
+
+# -- hostile input, a second patch served throughout, bundles changed under the node ---------
+def _second_patch(bundles: Path, out: Path, name: str = "forearm") -> None:
+    """A copy of the hexagon bundle posing as another patch (its manifest renamed; the layout
+    file it came from is forgotten so that the rename is not refused as foreign)."""
+    shutil.copytree(bundles / "hexagon", out / name)
+    manifest = out / name / "manifest.json"
+    content = json.loads(manifest.read_text())
+    content.update(patch=name, frame_id=f"skin_{name}", layout_source=None)
+    manifest.write_text(json.dumps(content))
+
+
+class TwoPatchRig:
+    """The node serving ``hexagon`` and ``forearm``; a probe publishes and listens to both."""
+
+    def __init__(self, context: object, bundles_dir: Path) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+        from rclpy.parameter import Parameter
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+        from tactile_contact.layout import load_layout
+        from tactile_contact.msg import ContactState, TaxelArray
+        from tactile_contact.nodes.common import DIAGNOSTICS_QOS
+        from tactile_contact.nodes.contact_reconstruction import ContactReconstructionNode
+
+        overrides = [
+            Parameter("bundles_dir", value=str(bundles_dir)),
+            Parameter("diagnostics_period", value=0.1),
+        ]
+        self.node = ContactReconstructionNode(context=context, parameter_overrides=overrides)
+        self.probe = Node("probe", context=context)
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self.pubs = {
+            p: self.probe.create_publisher(TaxelArray, f"{p}/taxels", 10)
+            for p in ("hexagon", "forearm")
+        }
+        self.contacts: dict[str, list] = {"hexagon": [], "forearm": []}
+        for p, got in self.contacts.items():
+            self.probe.create_subscription(ContactState, f"{p}/contact", got.append, qos)
+        self.diags: list = []
+        self.probe.create_subscription(
+            DiagnosticArray, "/diagnostics", self.diags.append, DIAGNOSTICS_QOS
+        )
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.probe)
+        self.ids = load_layout(LAYOUT).patches[0].taxel_ids().tolist()
+        for p, pub in self.pubs.items():
+            assert spin_until(self.executor, lambda pub=pub: pub.get_subscription_count() > 0)
+            pipe = self.node.pipelines[p]
+            assert spin_until(
+                self.executor, lambda pipe=pipe: pipe.pub_contact.get_subscription_count() > 0
+            )
+
+    def msg(self, patch: str, delta_c: object, ids: list | None = None) -> object:
+        from tactile_contact.msg import TaxelArray
+
+        ids = self.ids if ids is None else ids
+        m = TaxelArray(patch=patch, taxel_ids=ids, raw=[240] * len(ids), status=[0] * len(ids))
+        m.delta_c = np.asarray(delta_c, np.float32).tolist()
+        m.header.stamp.sec = 1
+        return m
+
+    def publish(self, topic: str, msg: object, expect_output: bool) -> None:
+        n = len(self.contacts[topic])
+        stats = self.node.pipelines[topic].stats
+        frames = stats.frames
+        self.pubs[topic].publish(msg)
+        assert spin_until(self.executor, lambda: stats.frames > frames), "frame not received"
+        if expect_output:
+            assert spin_until(self.executor, lambda: len(self.contacts[topic]) > n)
+
+    def status(self, patch: str) -> tuple[int, str, dict[str, str]]:
+        n = len(self.diags)
+        assert spin_until(self.executor, lambda: len(self.diags) > n + 1)
+        for s in self.diags[-1].status:
+            if s.name == f"contact_reconstruction: {patch}":
+                return s.level[0], s.message, {kv.key: kv.value for kv in s.values}
+        raise AssertionError(f"no status for {patch}")
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.probe.destroy_node()
+
+
+def _on_taxel(i: int) -> tuple[float, float]:
+    from tactile_contact.layout import load_layout
+
+    x, y = load_layout(LAYOUT).patches[0].taxel_xy()[i]
+    return float(x), float(y)
+
+
+def _valid(state: object) -> bool:
+    values = [state.total_force, state.contact_area, state.peak_pressure]
+    values += [state.center_of_pressure.x, state.center_of_pressure.y]
+    values += [x for c in state.contacts for x in (c.force, c.radius, c.center.x, c.center.y)]
+    return (
+        bool(np.all(np.isfinite(values)))
+        and min(state.total_force, state.contact_area, state.peak_pressure) >= 0.0
+    )
+
+
+def test_hostile_frames_publish_nothing_invalid_and_the_other_patch_is_served(
+    ros_context: object, bundles: Path, tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    shutil.copytree(bundles / "hexagon", tmp_path / "hexagon")
+    _second_patch(bundles, tmp_path)
+    rig = TwoPatchRig(ros_context, tmp_path)
+    good = _delta_c(1.0, _on_taxel(30))
+    k = len(rig.ids)
+    nan_some = good.copy()
+    nan_some[::7] = np.nan
+    inf_some = good.copy()
+    inf_some[3], inf_some[40] = np.inf, -np.inf
+    hostile = [
+        ("all NaN", rig.msg("hexagon", np.full(k, np.nan)), True),
+        ("some NaN", rig.msg("hexagon", nan_some), True),
+        ("inf", rig.msg("hexagon", inf_some), True),
+        ("huge", rig.msg("hexagon", np.full(k, 1e30)), True),
+        ("all negative", rig.msg("hexagon", -np.abs(good) - 1e-15), True),
+        ("wrong length", rig.msg("hexagon", good[:-3], ids=rig.ids), False),
+        ("unknown taxels", rig.msg("hexagon", good[:5], ids=[0xF00 + i for i in range(5)]), False),
+        ("another patch", rig.msg("elbow", good), False),
+    ]
+    for _what, msg, solved in hostile:
+        rig.publish("hexagon", msg, expect_output=solved)
+        rig.publish("forearm", rig.msg("forearm", good), expect_output=True)
+    for _ in range(3):  # a repeated fault is logged once (rate-limited), counted every time
+        rig.publish("hexagon", rig.msg("hexagon", np.full(k, np.nan)), expect_output=True)
+    assert all(_valid(s) for s in rig.contacts["hexagon"]), "an invalid summary was published"
+    assert all(_valid(s) for s in rig.contacts["forearm"])
+    assert len(rig.contacts["forearm"]) == len(hostile)
+    forces = [s.total_force for s in rig.contacts["forearm"]]
+    assert forces == pytest.approx([1.0] * len(hostile), rel=0.15), forces
+    level, message, values = rig.status("hexagon")
+    assert level == 1 and message
+    assert values["nonfinite_frames"] == "6" and values["bad_frames"] == "2"
+    assert values["foreign_frames"] == "1" and values["internal_errors"] == "0"
+    assert rig.status("forearm")[0] == 0
+    err = capfd.readouterr().err
+    assert err.count("non-finite ΔC") == 1, "logged more than once within 5 s"
+    assert "Traceback" not in err
+    rig.close()
+
+
+def test_bundles_deleted_or_replaced_while_running(
+    ros_context: object, bundles: Path, tmp_path: Path
+) -> None:
+    folder = tmp_path / "bundles"
+    folder.mkdir()
+    shutil.copytree(bundles / "hexagon", folder / "hexagon")
+    _second_patch(bundles, folder)
+    rig = TwoPatchRig(ros_context, folder)
+    good = _delta_c(1.0, _on_taxel(30))
+    # 1. forearm's bundle deleted: reported, the loaded copy goes on serving.
+    shutil.rmtree(folder / "forearm")
+    level, message, _ = rig.status("forearm")
+    assert level == 1 and "deleted" in message
+    rig.publish("forearm", rig.msg("forearm", good), expect_output=True)
+    # 2. hexagon's arrays overwritten in place (a mapped file would crash the process):
+    #    the broken version is refused and reported, the loaded one goes on serving.
+    inverse = folder / "hexagon" / "inverse.npy"
+    with inverse.open("r+b") as f:
+        f.truncate(100)
+    level, message, values = rig.status("hexagon")
+    assert level == 2 and "refused" in message, message
+    rig.publish("hexagon", rig.msg("hexagon", good), expect_output=True)
+    assert rig.contacts["hexagon"][-1].total_force == pytest.approx(1.0, rel=0.15)
+    # 3. a good bundle put in its place (atomically, as tactile-contact-build does): reloaded.
+    shutil.copytree(bundles / "hexagon", tmp_path / "new")
+    shutil.rmtree(folder / "hexagon")
+    (tmp_path / "new").rename(folder / "hexagon")
+    assert spin_until(rig.executor, lambda: rig.node.pipelines["hexagon"].reloads == 1)
+    level, message, values = rig.status("hexagon")
+    assert values["bundle_problem"] == "" and values["bundle_reloads"] == "1"
+    rig.publish("hexagon", rig.msg("hexagon", good), expect_output=True)
+    assert rig.contacts["hexagon"][-1].total_force == pytest.approx(1.0, rel=0.15)
+    rig.close()
+
+
+# -- property: whatever the readings, what goes out is finite and never a negative force ------
+_RECON: dict[str, object] = {}
+
+
+def _reconstructor(bundles: Path) -> object:
+    from tactile_contact.nodes.contact_reconstruction import load_reconstructor
+
+    if "r" not in _RECON:
+        _RECON["r"] = load_reconstructor(bundles / "hexagon")
+    return _RECON["r"]
+
+
+@st.composite
+def readings(draw: st.DrawFn, k: int = 72) -> np.ndarray:
+    """8-bit count deviations of every kind a skin gives (× one count's ΔC in the test)."""
+    kind = draw(st.sampled_from(["random", "all_negative", "saturated", "single", "zero", "mixed"]))
+    seed = draw(st.integers(0, 2**31))
+    rng = np.random.default_rng(seed)
+    if kind == "random":
+        return rng.integers(-20, 60, k).astype(float)
+    if kind == "all_negative":
+        return -rng.integers(1, 40, k).astype(float)
+    if kind == "saturated":
+        c = np.zeros(k)
+        c[rng.choice(k, draw(st.integers(1, k)), replace=False)] = 255.0
+        return c
+    if kind == "single":
+        c = np.zeros(k)
+        c[draw(st.integers(0, k - 1))] = draw(st.sampled_from([-255.0, -3.0, 1.0, 5.0, 255.0]))
+        return c
+    if kind == "zero":
+        return np.zeros(k)
+    c = rng.integers(-255, 256, k).astype(float)
+    c[rng.random(k) < 0.2] = np.nan
+    return c
+
+
+@given(counts=readings(), valid_fraction=st.floats(0.0, 1.0))
+@settings(max_examples=60, deadline=None)
+def test_any_reading_gives_a_finite_nonnegative_published_summary(
+    bundles: Path, counts: np.ndarray, valid_fraction: float
+) -> None:
+    from std_msgs.msg import Header
+
+    from tactile_contact.nodes import convert
+    from tactile_contact.nodes.contact_reconstruction import check_result
+
+    recon = _reconstructor(bundles)
+    quantum = recon.full_scale / 256.0
+    rng = np.random.default_rng(len(counts))
+    valid = rng.random(len(counts)) < valid_fraction
+    result = recon.solve(counts * quantum, valid=valid)
+    check_result(result)  # raises if anything would be refused
+    msg = convert.contact_state(result, "hexagon", Header())
+    assert _valid(msg)
+    for c in result.contacts:
+        assert c.force >= 0.0 and c.radius >= 0.0
+    for grid in (result.traction, result.deflection):
+        assert grid is None or np.isfinite(grid).all()
+    if result.traction is not None:
+        assert result.traction.min() >= -1e-9 * max(1.0, np.abs(result.traction).max())

@@ -1,0 +1,299 @@
+"""Clean start and stop of every node (issue 17): no traceback, no "cannot use Destroyable",
+no leaked CAN bus or thread.
+
+- Each node is started and stopped 20 times in this process, stopped the way Ctrl-C stops it
+  (the context shut down while the executor spins and the node's threads publish), with
+  frames flowing; threads and python-can virtual buses are counted before and after.
+- The driver goes through configure / activate / deactivate / cleanup 20 times over its
+  lifecycle services, as ``ros2 lifecycle set`` drives it.
+- Each node executable gets a real SIGINT, during start-up and while running.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import can
+import pytest
+from can.interfaces import virtual
+
+from tactile_contact.simulator import simulator_for_patch
+
+pytestmark = pytest.mark.ros
+
+ROOT = Path(__file__).resolve().parents[1]
+LAYOUT = ROOT / "config" / "hexagon_patch.yaml"
+BAD_OUTPUT = ("Traceback", "cannot use Destroyable", "Exception in thread", "InvalidHandle")
+CYCLES = 20
+
+
+@pytest.fixture(scope="module")
+def bundles(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from tactile_contact.build import build_layout
+
+    out = tmp_path_factory.mktemp("bundles")
+    build_layout(LAYOUT, out)
+    return out
+
+
+@pytest.fixture
+def thread_errors() -> Iterator[list[str]]:
+    """Exceptions that escaped any thread (threading.excepthook), as text."""
+    caught: list[str] = []
+    old = threading.excepthook
+
+    def hook(args: threading.ExceptHookArgs) -> None:
+        caught.append(f"{args.thread.name if args.thread else '?'}: {args.exc_value!r}")
+
+    threading.excepthook = hook
+    try:
+        yield caught
+    finally:
+        threading.excepthook = old
+
+
+class Feeder:
+    """Simulated skin frames on a virtual channel, from a thread, until stopped."""
+
+    def __init__(self, channel: str) -> None:
+        from tactile_contact.layout import load_layout
+
+        self.sim = simulator_for_patch(load_layout(LAYOUT).patches[0], period_s=0.02)
+        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, name="feeder", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        k = 0
+        while not self.stop.wait(0.02):
+            for m in self.sim.period(None, 0.02 * k).messages:
+                self.bus.send(m)
+            k += 1
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(5.0)
+        self.bus.shutdown()
+
+
+def _make(name: str, context: Any, channel: str, bundles: Path) -> Any:
+    from rclpy.parameter import Parameter
+
+    if name == "skin_driver":
+        from tactile_contact.nodes.skin_driver import SkinDriver
+
+        params = {"interface": "virtual", "channel": channel, "layout": str(LAYOUT)}
+        params |= {"diagnostics_period_s": 0.1, "period_ms": 20, "calibration_samples": 2}
+        cls: Any = SkinDriver
+    elif name == "skin_simulator":
+        from tactile_contact.nodes.skin_simulator import SkinSimulatorNode
+
+        params = {"interface": "virtual", "channel": channel, "layout": str(LAYOUT)}
+        params |= {"period_ms": 20}
+        cls = SkinSimulatorNode
+    else:
+        from tactile_contact.nodes.contact_reconstruction import ContactReconstructionNode
+
+        params = {"bundles_dir": str(bundles), "diagnostics_period": 0.1}
+        cls = ContactReconstructionNode
+    return cls(
+        context=context, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]
+    )
+
+
+def _taxel_source(context: Any) -> tuple[Any, Any]:
+    """A node publishing zero taxel frames of the hexagon patch (for the reconstruction)."""
+    import numpy as np
+    from rclpy.node import Node
+
+    from tactile_contact.layout import load_layout
+    from tactile_contact.msg import TaxelArray
+
+    node = Node("taxel_source", context=context)
+    pub = node.create_publisher(TaxelArray, "hexagon/taxels", 5)
+    ids = load_layout(LAYOUT).patches[0].taxel_ids().tolist()
+    rng = np.random.default_rng(0)
+
+    def tick() -> None:
+        msg = TaxelArray(patch="hexagon", taxel_ids=ids, raw=[240] * len(ids))
+        msg.delta_c = (rng.normal(0.0, 1e-16, len(ids))).astype(np.float32).tolist()
+        msg.status = [0] * len(ids)
+        msg.header.stamp = node.get_clock().now().to_msg()
+        pub.publish(msg)
+
+    node.create_timer(0.02, tick)
+    return node, pub
+
+
+@pytest.mark.parametrize("name", ["skin_driver", "skin_simulator", "contact_reconstruction"])
+def test_node_starts_and_stops_20_times_cleanly(
+    name: str, bundles: Path, capfd: pytest.CaptureFixture[str], thread_errors: list[str]
+) -> None:
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+    channel = f"lifecycle-{name}"
+    feeder = Feeder(channel) if name == "skin_driver" else None
+    baseline = {t.ident for t in threading.enumerate()}
+    buses_before = len(virtual.channels.get(channel, []))
+    try:
+        for cycle in range(CYCLES):
+            context = Context()
+            rclpy.init(context=context)
+            node = _make(name, context, channel, bundles)
+            extra = _taxel_source(context)[0] if name == "contact_reconstruction" else None
+            executor = SingleThreadedExecutor(context=context)
+            executor.add_node(node)
+            if extra is not None:
+                executor.add_node(extra)
+
+            def spin(ex: Any = executor) -> None:
+                with contextlib.suppress(ExternalShutdownException):
+                    ex.spin()
+
+            spinner = threading.Thread(target=spin, name="spin")
+            spinner.start()
+            time.sleep(0.05 + 0.1 * (cycle % 3))  # vary the moment of the "Ctrl-C"
+            # What rclpy's SIGINT handler does: shut the context down under the running
+            # executor and the node's own threads; then the node is destroyed (run_node).
+            context.try_shutdown()
+            spinner.join(5.0)
+            assert not spinner.is_alive(), "the executor did not stop"
+            executor.shutdown(timeout_sec=1.0)
+            if extra is not None:
+                extra.destroy_node()
+            node.destroy_node()
+    finally:
+        if feeder is not None:
+            feeder.close()
+    leftover = [t.name for t in threading.enumerate() if t.ident not in baseline and t.is_alive()]
+    assert not leftover, f"threads left after {CYCLES} start/stop cycles: {leftover}"
+    assert len(virtual.channels.get(channel, [])) <= max(buses_before - 1, 0), "a bus leaked"
+    out, err = capfd.readouterr()
+    for text in BAD_OUTPUT:
+        assert text not in out + err, f"{text!r} printed:\n{(out + err)[-3000:]}"
+    assert not thread_errors, thread_errors
+
+
+def test_driver_lifecycle_transitions_20_times_over_its_services(
+    ros_context: Any, capfd: pytest.CaptureFixture[str], thread_errors: list[str]
+) -> None:
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+
+    channel = "lifecycle-transitions"
+    feeder = Feeder(channel)
+    node = _make("skin_driver", ros_context, channel, Path())
+    # autostart: configured and active at once; ros2 lifecycle then drives it by services.
+    manager = Node("lifecycle_manager", context=ros_context)
+    change = manager.create_client(ChangeState, "/skin_driver/change_state")
+    get = manager.create_client(GetState, "/skin_driver/get_state")
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    executor.add_node(manager)
+    stop = threading.Event()
+    spinner = threading.Thread(
+        target=lambda: [executor.spin_once(timeout_sec=0.01) for _ in iter(stop.is_set, True)]
+    )
+    spinner.start()
+
+    def call(client: Any, request: Any) -> Any:
+        assert client.wait_for_service(timeout_sec=5.0)
+        future = client.call_async(request)
+        deadline = time.monotonic() + 5.0
+        while not future.done() and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert future.done(), "no answer"
+        return future.result()
+
+    def transition(tid: int) -> None:
+        result = call(change, ChangeState.Request(transition=Transition(id=tid)))
+        assert result.success, tid
+
+    def state() -> str:
+        return call(get, GetState.Request()).current_state.label
+
+    try:
+        assert state() == "active"
+        threads_active = {t.ident for t in threading.enumerate()}
+        for _ in range(CYCLES):
+            transition(Transition.TRANSITION_DEACTIVATE)
+            assert state() == "inactive"
+            transition(Transition.TRANSITION_CLEANUP)
+            assert state() == "unconfigured" and node._bus is None
+            assert not any(t.name == "skin_rx" for t in threading.enumerate())
+            transition(Transition.TRANSITION_CONFIGURE)
+            transition(Transition.TRANSITION_ACTIVATE)
+            assert state() == "active"
+            time.sleep(0.05)  # frames flow, the receive thread publishes
+        assert {t.ident for t in threading.enumerate() if t.is_alive()} - threads_active <= {
+            node._thread.ident
+        }
+        transition(Transition.TRANSITION_ACTIVE_SHUTDOWN)
+        assert state() == "finalized" and node._bus is None
+    finally:
+        stop.set()
+        spinner.join(5.0)
+        executor.shutdown()
+        node.destroy_node()
+        manager.destroy_node()
+        feeder.close()
+    assert not [t for t in threading.enumerate() if t.name == "skin_rx"], "receive thread leaked"
+    assert len(virtual.channels.get(channel, [])) == 0, "a bus leaked"
+    out, err = capfd.readouterr()
+    for text in BAD_OUTPUT:
+        assert text not in out + err, f"{text!r} printed:\n{(out + err)[-3000:]}"
+    assert not thread_errors, thread_errors
+
+
+@pytest.mark.parametrize("name", ["skin_driver", "skin_simulator", "contact_reconstruction"])
+def test_sigint_during_start_up_and_while_running_is_clean(name: str, bundles: Path) -> None:
+    """The installed executable (scripts/) under a real SIGINT, early and late."""
+    args = {
+        "skin_driver": ["-p", "interface:=virtual"],
+        "skin_simulator": ["-p", "interface:=virtual"],
+        "contact_reconstruction": ["-p", f"bundles_dir:={bundles}"],
+    }[name]
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    for delay in (0.4, None):  # during the imports; after the node says it is up
+        proc = subprocess.Popen(
+            [sys.executable, str(ROOT / "scripts" / name), "--ros-args", *args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            env=env,
+            text=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        )
+        lines: list[str] = []
+        reader = threading.Thread(
+            target=lambda p=proc, out=lines: out.extend(p.stdout), daemon=True
+        )
+        reader.start()
+        if delay is not None:
+            time.sleep(delay)
+        else:
+            ready = ("active: publishing", "simulating patch", "traction grid")
+            deadline = time.monotonic() + 30.0
+            while not any(r in line for line in list(lines) for r in ready):
+                assert time.monotonic() < deadline, "".join(lines)[-2000:]
+                time.sleep(0.05)
+            time.sleep(0.3)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=20.0) in (0, 130), "".join(lines)[-2000:]
+        reader.join(5.0)
+        text = "".join(lines)
+        for bad in BAD_OUTPUT:
+            assert bad not in text, f"{name}, SIGINT after {delay} s: {bad!r}\n{text[-3000:]}"
