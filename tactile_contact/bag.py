@@ -19,7 +19,8 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+import yaml
+from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.msg import get_types_from_msg
 
@@ -156,16 +157,113 @@ def read_messages(
     """All messages of ``topics`` (all when None) as (topic, receive time [ns], message).
 
     Messages are deserialised with rosbags (not rclpy), which makes this a check independent
-    of the publishing side.
+    of the publishing side. Raises :class:`BagError` like :func:`load_raw`.
     """
     store = typestore()
-    wanted = None if topics is None else set(topics)
     out = []
-    with Reader(Path(path)) as reader:
-        conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
-        for conn, stamp, data in reader.messages(connections=conns):
-            out.append((conn.topic, stamp, store.deserialize_cdr(data, conn.msgtype)))
+    for topic, stamp, data, msgtype in load_raw(path, topics):
+        try:
+            out.append((topic, stamp, store.deserialize_cdr(data, msgtype)))
+        except Exception as exc:
+            raise BagError(f"{path}: a message of {topic} does not decode: {exc}") from None
     return out
+
+
+def load_raw(
+    path: str | Path, topics: Iterable[str] | None = None
+) -> list[tuple[str, int, bytes, str]]:
+    """Every message of ``topics`` (all when None) as (topic, time [ns], raw CDR, type name),
+    after checking that the bag can be replayed here.
+
+    Raises :class:`BagError`, naming the file and the problem, when the bag does not exist or
+    does not open (metadata missing or of an unknown version), lacks a requested topic, holds
+    a message type that is not installed or was recorded with another definition of it (an
+    older version of a message: its bytes would be misread), or is truncated or corrupt.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise BagError(f"{p}: no such bag")
+    store = typestore()
+    meta = p / "metadata.yaml" if p.is_dir() else p.with_name("metadata.yaml")
+    if not meta.is_file():
+        raise BagError(f"{p}: no metadata.yaml: not a rosbag2 bag, or an incomplete copy")
+    try:
+        info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
+        info["version"], info["relative_file_paths"]  # present, or KeyError
+        reader = Reader(p)
+    except (ReaderError, OSError, ValueError, KeyError, TypeError, yaml.YAMLError) as exc:
+        raise BagError(f"{p}: metadata.yaml unreadable: {type(exc).__name__}: {exc}") from None
+    try:
+        reader.open()
+    except (ReaderError, OSError, ValueError, KeyError, TypeError) as exc:
+        where = "metadata.yaml" if "metadata" in str(exc).lower() else "a data file"
+        raise BagError(f"{p}: {where} is truncated or corrupt: {exc}") from None
+    try:
+        have = {c.topic: c for c in reader.connections}
+        wanted = None if topics is None else list(topics)
+        if wanted is not None:
+            missing = sorted(set(wanted) - set(have))
+            if missing:
+                raise BagError(
+                    f"{p}: topic(s) {', '.join(missing)} not in the bag; it holds "
+                    f"{', '.join(sorted(have)) or 'no topic'}"
+                )
+        conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
+        for c in conns:
+            _check_type(p, c, store)
+        out: list[tuple[str, int, bytes, str]] = []
+        try:
+            for c, stamp, data in reader.messages(connections=conns):
+                out.append((c.topic, stamp, bytes(data), c.msgtype))
+        except Exception as exc:  # rosbags, mcap, zstd and sqlite3 each raise their own
+            raise BagError(
+                f"{p}: truncated or corrupt after {len(out)} messages ({type(exc).__name__}: {exc})"
+            ) from None
+        expected = sum(c.msgcount for c in conns)
+        if expected and len(out) < expected:
+            raise BagError(
+                f"{p}: truncated: {len(out)} of the {expected} messages its metadata lists"
+            )
+        for c in conns:  # without a recorded type hash, the first message must decode
+            if not c.digest.startswith("RIHS01_"):
+                first = next((d for t, _, d, _ in out if t == c.topic), None)
+                if first is not None:
+                    _check_decodes(p, c, store, first)
+        return out
+    finally:
+        reader.close()
+
+
+def _check_type(p: Path, c: Any, store: Any) -> None:
+    try:
+        message_class(c.msgtype)
+    except (ImportError, BagError):
+        raise BagError(
+            f"{p}: topic {c.topic} holds {c.msgtype}, a message type not installed here"
+        ) from None
+    if c.msgtype not in store.fielddefs:
+        return
+    ours = store.hash_rihs01(c.msgtype)
+    if c.digest.startswith("RIHS01_") and c.digest != ours:
+        raise BagError(
+            f"{p}: topic {c.topic} was recorded with another definition of {c.msgtype} "
+            f"(type hash {c.digest}, this build has {ours}): an older or newer version of the "
+            "message, whose bytes this build would misread; re-record the bag, or convert it"
+        )
+
+
+def _check_decodes(p: Path, c: Any, store: Any, data: bytes) -> None:
+    try:
+        again = store.serialize_cdr(store.deserialize_cdr(data, c.msgtype), c.msgtype)
+    except Exception as exc:
+        again, why = None, f"{type(exc).__name__}: {exc}"
+    else:
+        why = "it re-encodes to other bytes"
+    if again is None or bytes(again) != data:
+        raise BagError(
+            f"{p}: topic {c.topic}: its {c.msgtype} messages do not match this build's "
+            f"definition ({why}): recorded by another version of the message?"
+        )
 
 
 class BagPlayer:
@@ -195,11 +293,9 @@ class BagPlayer:
         self._node = node
         self._rate = rate
         self._remap = dict(remap or {})
-        wanted = None if topics is None else set(topics)
-        with Reader(self.path) as reader:
-            conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
-            self._messages = [(c.topic, t, bytes(d)) for c, t, d in reader.messages(conns)]
-            types = {c.topic: c.msgtype for c in conns}
+        raw = load_raw(self.path, topics)
+        self._messages = [(topic, t, data) for topic, t, data, _ in raw]
+        types = {topic: msgtype for topic, _, _, msgtype in raw}
         self._publishers = {
             topic: node.create_publisher(
                 message_class(msgtype), self._remap.get(topic, topic), _qos(True)

@@ -78,19 +78,31 @@ def _replay(args: argparse.Namespace) -> int:
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
 
-    from tactile_contact.bag import BagPlayer
+    from tactile_contact.bag import BagError, BagPlayer, load_raw
     from tactile_contact.nodes.contact_reconstruction import ContactReconstructionNode
 
+    # The bag is checked before any node starts: a missing topic, a truncated file or an
+    # older message definition is one clear error, not a half-started graph.
+    raw = load_raw(args.bag, args.topics or None)
+    taxels = sorted({t for t, _, _, msgtype in raw if msgtype.endswith("/TaxelArray")})
+    if not taxels:
+        held = sorted({f"{t} ({msgtype})" for t, _, _, msgtype in raw})
+        raise BagError(
+            f"{args.bag}: no tactile_contact/msg/TaxelArray topic to replay into the "
+            f"reconstruction; it holds {', '.join(held) or 'no message'}"
+        )
     context = Context()
     rclpy.init(context=context)
+    nodes = []
     try:
         recon = ContactReconstructionNode(
             context=context,
             parameter_overrides=[rclpy.parameter.Parameter("bundles_dir", value=args.bundles)],
         )
+        nodes.append(recon)
         player_node = rclpy.create_node("tactile_contact_player", context=context)
-        topics = args.topics or _taxel_topics(args.bag)
-        player = BagPlayer(player_node, args.bag, topics=topics, rate=args.rate)
+        nodes.append(player_node)
+        player = BagPlayer(player_node, args.bag, topics=args.topics or None, rate=args.rate)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(recon)
         executor.add_node(player_node)
@@ -103,6 +115,8 @@ def _replay(args: argparse.Namespace) -> int:
             executor.spin_once(timeout_sec=0.05)
         print(f"replayed {player.published} messages from {args.bag}")
     finally:
+        for node in nodes:
+            node.destroy_node()
         rclpy.try_shutdown(context=context)
     return 0
 
@@ -148,7 +162,9 @@ def main(argv: list[str] | None = None) -> int:
         from tactile_contact import demo
 
         return demo.main(args.rest)
-    except (OSError, ValueError, RuntimeError) as exc:
+    except KeyboardInterrupt:
+        return 130
+    except (OSError, ValueError, RuntimeError) as exc:  # BagError is a RuntimeError
         print(f"ERROR: {exc}", file=sys.stderr)
         return 1
 
