@@ -247,8 +247,9 @@ class SkinStream:
         )
         self.last_error: codec.CodecError | None = None
         self.controller = ControllerState()
-        #: (diagnostic level, text) of state changes since the caller last emptied the list.
-        self.events: list[tuple[int, str]] = []
+        #: (diagnostic level, kind, text) of state changes since the caller last emptied the
+        #: list; ``kind`` groups repeats (``controller``, ``module b/t``) for rate limiting.
+        self.events: list[tuple[int, str, str]] = []
         self._report_time = math.nan
         self._start: float | None = None  # monotonic time of the first reading [s]
 
@@ -329,6 +330,7 @@ class SkinStream:
             self.events.append(
                 (
                     0,
+                    f"module {m.board}/{m.triangle}",
                     f"patch {st.layout.name}: module board {m.board} triangle {m.triangle} "
                     "heard for the first time",
                 )
@@ -359,11 +361,14 @@ class SkinStream:
                 self.events.append(
                     (
                         level,
+                        "controller",
                         f"CAN controller {changed} (error frame, class 0x{msg.arbitration_id:03X})",
                     )
                 )
         elif not msg.is_remote_frame and self.controller.data_frame(now) is not None:
-            self.events.append((0, "CAN controller back from bus-off: data frames again"))
+            self.events.append(
+                (0, "controller", "CAN controller back from bus-off: data frames again")
+            )
 
     def _module_back(self, st: _PatchState, m: _ModuleState, sl: slice, now: float) -> None:
         """A module heard again after more than the timeout: re-baseline its channels."""
@@ -376,6 +381,7 @@ class SkinStream:
         self.events.append(
             (
                 0,
+                f"module {m.board}/{m.triangle}",
                 f"patch {st.layout.name}: module board {m.board} triangle {m.triangle} back "
                 f"after {now - m.last_seen:.2f} s of silence; re-baselining its taxels",
             )
@@ -396,6 +402,7 @@ class SkinStream:
                     self.events.append(
                         (
                             2,
+                            f"module {m.board}/{m.triangle}",
                             f"patch {st.layout.name}: module board {m.board} triangle "
                             f"{m.triangle} silent ({heard}); its taxels are flagged invalid",
                         )

@@ -50,6 +50,8 @@ from tactile_contact.stream import (
 )
 
 WARN_THROTTLE_S = 5.0
+#: State changes are published on /diagnostics at once, but at most this often [s].
+EVENT_DIAG_MIN_S = 0.1
 SUCCESS = TransitionCallbackReturn.SUCCESS
 FAILURE = TransitionCallbackReturn.FAILURE
 
@@ -169,6 +171,10 @@ class SkinDriver(LifecycleNode):
         self._tare_srv: Any = None
         self._params: dict[str, Any] = {}
         self._finished_logged = False
+        self._event_log: dict[str, tuple[float, int]] = {}  # kind → (last logged, unsaid)
+        self._warned: dict[str, float] = {}  # kind → monotonic time last logged
+        self._diag_due = False  # a state change awaits its /diagnostics
+        self._diag_last = -1.0  # monotonic time of the last /diagnostics
         super().__init__(node_name, **kwargs)
         for name, default, text, options in PARAMETERS:
             cm.declare_parameter(self, name, default, text, **options)
@@ -403,10 +409,8 @@ class SkinDriver(LifecycleNode):
             # that failed to parse what the adapter sent.
             with self._lock:
                 reconnect = policy.error(exc)
-            log.warning(
-                f"CAN bus error ({policy.errors} so far): {type(exc).__name__}: {exc}",
-                throttle_duration_sec=WARN_THROTTLE_S,
-            )
+            if self._due("bus error"):
+                log.warning(f"CAN bus error ({policy.errors} so far): {type(exc).__name__}: {exc}")
             if reconnect:
                 self._drop_bus(f"{p['reconnect_after_errors']} consecutive bus errors")
             else:
@@ -425,16 +429,15 @@ class SkinDriver(LifecycleNode):
         for frame in out:
             self._publish(frame)
         if stream.last_error is not None:
-            log.warning(
-                f"rejected frame: {stream.last_error}", throttle_duration_sec=WARN_THROTTLE_S
-            )
+            # (checked here: rclpy's own throttle inspects the call stack on every call)
+            if self._due("rejected"):
+                log.warning(f"rejected frame: {stream.last_error} (frames counted by kind)")
             stream.last_error = None
         if events:
-            for level, text in events:
-                if level >= cm.ERROR:  # (one severity per rclpy logging call site)
-                    log.error(text)
-                else:
-                    log.info(text)
+            self._log_events(events)
+            self._diag_due = True
+        if self._diag_due and time.monotonic() - self._diag_last >= EVENT_DIAG_MIN_S:
+            self._diag_due = False
             self._publish_diagnostics(window=False)
         # Bus-off with no data since: reopening re-initialises the controller of most adapters
         # (socketcan needs `ip link set can0 type can restart-ms 100` to restart by itself).
@@ -443,6 +446,32 @@ class SkinDriver(LifecycleNode):
             with self._lock:
                 stream.controller.bus_off_since = time.monotonic()
             self._drop_bus("controller bus-off with no data since")
+
+    def _due(self, kind: str) -> bool:
+        """True at most once per WARN_THROTTLE_S per kind (for the receive thread's logs)."""
+        now = time.monotonic()
+        if now - self._warned.get(kind, -WARN_THROTTLE_S) < WARN_THROTTLE_S:
+            return False
+        self._warned[kind] = now
+        return True
+
+    def _log_events(self, events: list[tuple[int, str, str]]) -> None:
+        """Log state changes; a kind that repeats (a flood of error frames) at most once per
+        WARN_THROTTLE_S, with the number left unsaid."""
+        log = self.get_logger()
+        now = time.monotonic()
+        for level, kind, text in events:
+            last, quiet = self._event_log.get(kind, (-WARN_THROTTLE_S, 0))
+            if now - last < WARN_THROTTLE_S:
+                self._event_log[kind] = (last, quiet + 1)
+                continue
+            if quiet:
+                text += f" ({quiet} more changes of this kind in the last {now - last:.0f} s)"
+            self._event_log[kind] = (now, 0)
+            if level >= cm.ERROR:  # (one severity per rclpy logging call site)
+                log.error(text)
+            else:
+                log.info(text)
 
     def _drop_bus(self, why: str) -> None:
         """Close the bus and schedule a reopen after the backoff wait."""
@@ -560,6 +589,7 @@ class SkinDriver(LifecycleNode):
                 for s in statuses
             ]
             pub.publish(out)
+            self._diag_last = time.monotonic()
 
     def _state_label(self) -> str:
         # rclpy's LifecycleNode offers the state only through its ~/get_state service (a call
