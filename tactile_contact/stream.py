@@ -21,6 +21,7 @@ Times: ``stamp`` values are the messages' receive times (python-can ``timestamp`
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 from collections.abc import Iterator, Sequence
@@ -42,6 +43,7 @@ __all__ = [
     "PatchFrame",
     "ReplayBus",
     "SkinStream",
+    "close_bus",
     "open_bus",
 ]
 
@@ -123,6 +125,26 @@ def open_bus(
     if can_filters:
         kwargs["can_filters"] = list(can_filters)
     return can.Bus(**kwargs)
+
+
+def close_bus(bus: can.BusABC | ReplayBus) -> str:
+    """Shut ``bus`` down; never raises. Returns the error text ("" when it closed cleanly).
+
+    A backend may give up half-way on a device that is gone: python-can's slcan writes its
+    close command to an unplugged port, raises, and never closes the port. Then the handles it
+    is known to hold are closed here, so that a driver reconnecting for days leaks no file
+    descriptor.
+    """
+    try:
+        bus.shutdown()
+        return ""
+    except Exception as exc:
+        for name in ("serialPortOrig", "ser", "socket", "_socket"):
+            handle = getattr(bus, name, None)
+            if handle is not None and callable(getattr(handle, "close", None)):
+                with contextlib.suppress(Exception):
+                    handle.close()
+        return f"{type(exc).__name__}: {exc}"
 
 
 @dataclass(frozen=True)

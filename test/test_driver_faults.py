@@ -11,9 +11,13 @@ The harness (a driver and a listener on one executor, frames sent from a thread 
 
 from __future__ import annotations
 
+import contextlib
+import os
 import random
+import select
 import threading
 import time
+from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
@@ -253,3 +257,121 @@ def test_bus_off_without_data_reopens_the_bus_with_backoff(harness_factory: Any)
     h.driver._publish_diagnostics()
     assert h.spin_until(lambda: h.diag()["CAN bus"]["controller_state"] == "error-active", 2.0)
     assert h.diag()["CAN bus"]["_level"] == "0"
+
+
+# -- a USB serial CAN adapter unplugged and plugged back (python-can slcan over a pty) ---------
+class SerialAdapter:
+    """An SLCAN adapter (CANable-like) on a pseudo-terminal: the device node is a symlink to the
+    pty, which :meth:`unplug` removes (reads on the open port then fail with EIO, opening it
+    fails with ENOENT) and :meth:`plug` creates again, as udev does for /dev/ttyACM0."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.fds: tuple[int, int] | None = None
+        self.lock = threading.Lock()
+        self.plug()
+
+    def plug(self) -> None:
+        import pty
+        import tty
+
+        master, slave = pty.openpty()
+        tty.setraw(slave)
+        with self.lock:
+            self.fds = (master, slave)
+        self.path.symlink_to(os.ttyname(slave))
+        threading.Thread(target=self._drain, args=(master,), daemon=True).start()
+
+    def _drain(self, master: int) -> None:
+        """Read the host's commands (C, S8, O) away; never blocked in a read, so that closing
+        the master really hangs the line up."""
+        with contextlib.suppress(OSError, ValueError):
+            while self.fds is not None and self.fds[0] == master:
+                if select.select([master], [], [], 0.05)[0]:
+                    os.read(master, 1024)
+
+    def unplug(self) -> None:
+        self.path.unlink()
+        with self.lock:
+            fds, self.fds = self.fds, None
+        time.sleep(0.1)  # the drain thread lets go of the master
+        if fds is not None:
+            for fd in fds:
+                os.close(fd)
+
+    def send(self, msgs: list[can.Message]) -> None:
+        text = "".join(
+            f"t{m.arbitration_id:03X}{len(m.data)}{bytes(m.data).hex().upper()}\r" for m in msgs
+        )
+        with self.lock:
+            if self.fds is not None:
+                os.write(self.fds[0], text.encode())
+
+
+def open_ttys() -> int:
+    """File descriptors of this process on pseudo-terminals (both ends)."""
+    out = 0
+    for fd in os.listdir("/proc/self/fd"):
+        with contextlib.suppress(OSError):
+            out += os.readlink(f"/proc/self/fd/{fd}").startswith(("/dev/pts/", "/dev/ptmx"))
+    return out
+
+
+def test_serial_adapter_unplugged_is_reported_retried_with_backoff_and_recovered(
+    ros_context: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from test.test_driver_node import Harness
+
+    pytest.importorskip("serial", reason="pyserial (python-can's slcan interface) not installed")
+    monkeypatch.setenv("CAN_CONFIG", '{"sleep_after_open": 0}')  # python-can's own config
+    adapter = SerialAdapter(tmp_path / "ttyCAN0")
+    h = Harness(
+        ros_context,
+        str(adapter.path),
+        interface="slcan",
+        reconnect_after_errors=3,
+        reconnect_interval_s=0.1,
+        reconnect_max_interval_s=0.4,
+    )
+    stop = threading.Event()
+
+    def feed() -> None:
+        k = 0
+        sim = simulator(seed=9)
+        while not stop.wait(PERIOD_S):
+            adapter.send(sim.period(None, k * PERIOD_S).messages)
+            k += 1
+
+    feeder = threading.Thread(target=feed, daemon=True)
+    feeder.start()
+    try:
+        h.wait_matched()
+        assert h.spin_until(lambda: len(h.taxels) >= 10, 5.0), "no data over the adapter"
+        ttys_before = open_ttys()
+        adapter.unplug()
+        unplugged = time.monotonic()
+        assert h.spin_until(lambda: latest(h, "CAN bus") == "2", 3.0)
+        time.sleep(1.2)  # several reopen attempts fail meanwhile (no such device)
+        bus = h.diag()["CAN bus"]
+        attempts = int(bus["reconnect_attempts"])
+        assert 3 <= attempts <= 8, f"backoff 0.1 → 0.4 s: {attempts} attempts in 1.2 s"
+        assert bus["reconnects"] == "0" and bus["_message"].startswith("closed, reopening")
+        adapter.plug()
+        plugged = time.monotonic()
+        n = len(h.taxels)
+        assert h.spin_until(lambda: len(h.taxels) >= n + 10, 5.0), "no data after replug"
+        back = time.monotonic() - plugged
+        assert open_ttys() == ttys_before, "the unplugged port was not closed (fd leak)"
+        h.driver._publish_diagnostics()
+        assert h.spin_until(lambda: latest(h, "CAN bus", "reconnects") == "1", 2.0)
+        print(
+            f"\nadapter unplugged {plugged - unplugged:.1f} s: {attempts} reopen attempts "
+            f"(backoff 0.1 s doubling to 0.4 s), data again {back * 1e3:.0f} ms after replug"
+        )
+        assert back < 1.0
+    finally:
+        stop.set()
+        feeder.join(2.0)
+        h.close()
+        with contextlib.suppress(OSError):
+            adapter.unplug()

@@ -22,7 +22,6 @@ lives in :mod:`tactile_contact.stream`.
 
 from __future__ import annotations
 
-import contextlib
 import threading
 import time
 from pathlib import Path
@@ -46,6 +45,7 @@ from tactile_contact.stream import (
     PatchFrame,
     ReplayBus,
     SkinStream,
+    close_bus,
     open_bus,
 )
 
@@ -338,10 +338,9 @@ class SkinDriver(LifecycleNode):
         self._stop_thread()
         bus, self._bus = self._bus, None
         if bus is not None:
-            try:
-                bus.shutdown()
-            except Exception as exc:
-                self.get_logger().warning(f"closing the bus: {exc}")
+            error = close_bus(bus)
+            if error:
+                self.get_logger().warning(f"closing the bus: {error}")
         for pub in self._pubs.values():
             self.destroy_lifecycle_publisher(pub)
         self._pubs.clear()
@@ -481,8 +480,9 @@ class SkinDriver(LifecycleNode):
         self._next_attempt = time.monotonic() + wait
         self.get_logger().warning(f"{why}: closing the bus, reopening in {wait:.2f} s")
         if bus is not None:
-            with contextlib.suppress(Exception):
-                bus.shutdown()
+            error = close_bus(bus)
+            if error and self._due("close"):
+                self.get_logger().warning(f"closing the failed bus: {error}")
         self._publish_diagnostics(window=False)
 
     def _reopen(self) -> None:
