@@ -222,11 +222,13 @@ def calibration_places(lay: Layout, n: int) -> list[tuple[str, np.ndarray, float
 def calibration_presses(lay: Layout, name: str, n: int) -> dict[str, np.ndarray]:
     """The truth's ``n`` calibration presses (cached): d (n, K) [m], f, c, ind."""
     gain = TRUTHS[name][2]
-    places = calibration_places(lay, N_CAL)[:n]
-    key = CACHE / _tag(lay, name) / f"calibration_{N_CAL}.npz"
-    if not key.exists():
+    every = calibration_places(lay, N_CAL)
+    places = every[:n]
+    which = zlib.crc32(repr([(i, c.round(9).tolist(), f) for i, c, f in every]).encode())
+    key = CACHE / _tag(lay, name) / f"calibration_{N_CAL}_{which:08x}.npz"
+    if not key.exists() or len(np.load(key)["d"]) != len(every):
         truth = _truth(lay, name)
-        d = [truth.presses(INDENTERS[i], [f], c, jacobian=False)[0][0] for i, c, f in places]
+        d = [truth.presses(INDENTERS[i], [f], c, jacobian=False)[0][0] for i, c, f in every]
         np.savez(key, d=np.array(d))
     d = np.load(key)["d"][:n]
     return {
@@ -469,7 +471,8 @@ def main() -> None:
                 if not vals:
                     w[col], who[col] = np.nan, "-"
                     continue
-                pick = max(vals, key=(lambda v: abs(v[0])) if col == "bias>=1" else None)
+                # The first truth wins a tie.
+                pick = max(vals, key=(lambda v: abs(v[0])) if col == "bias>=1" else lambda v: v[0])
                 w[col], who[col] = pick
                 if pick[0] == 0:  # every truth ties
                     who[col] = "-"
