@@ -59,10 +59,14 @@ def main() -> int:
     served = [(m.board, m.triangle) for m in patch.modules]
     sim = simulator_for_patch(patch, period_s=PERIOD_S, noise_cdc=1.0, seed=args.seed)
     periods = [sim.period(None, k * PERIOD_S) for k in range(args.periods)]
-    per_period = max(1, args.garbage // args.periods)
+    per_period = max(1, -(-args.garbage // (args.periods - 1)))
     traffic = hostile_batches(
-        [p.messages for p in periods], served, per_period, random.Random(args.seed)
+        [p.messages for p in periods[:-1]], served, per_period, random.Random(args.seed)
     )
+    # The last period is clean: a half repeating the last reading is judged a duplicate when
+    # its module's next frame comes.
+    traffic.batches.append(list(periods[-1].messages))
+    traffic.counts["valid"] += len(periods[-1].messages)
     truths = {k: p.truth.values.tobytes() for k, p in enumerate(periods)}
 
     ctx = Context()

@@ -147,6 +147,8 @@ class _Pending:
     b_oor: int = 0
     b_flags: int = 0
     tb: float = 0.0
+    a_dup: bool = False  # the pending half repeats one of the last reading (see _suspect)
+    b_dup: bool = False
     done_a: bytes | None = None  # frames of the last completed reading (duplicate check)
     done_b: bytes | None = None
     done_t: float = 0.0
@@ -166,7 +168,8 @@ class PeriodAssembler:
     - A then B within ``pair_window_s``: complete (the normal case).
     - A while an A is pending: identical bytes within ``duplicate_window_s`` is a duplicate
       (ignored); otherwise the pending period is incomplete and the new A replaces it. A frame
-      identical to one of the last completed reading, within the window, is a duplicate too.
+      identical to one of the last completed reading, within the window, waits like any
+      other half: paired, it is a reading; dropped unpaired, it counts as a duplicate.
     - B with the pending A older than ``pair_window_s``: that A is dropped (incomplete) and the B
       waits as if it came first.
     - B without A: kept for ``pair_window_s``; an A arriving within it completes the reading
@@ -326,34 +329,50 @@ class PeriodAssembler:
         )
 
     # -- pairing --------------------------------------------------------------------------
+    # A frame identical to one of the reading just completed, within the duplicate window, is
+    # most likely a duplicate, but it may be the next period of an unchanged reading whose
+    # receive times were squeezed together (an adapter or a host catching up). It is kept as
+    # a pending half like any other, marked suspect: if its partner comes it was a reading;
+    # if it is dropped unpaired it was a duplicate, and is counted as one (not as a lost half).
+    def _suspect(self, st: _Pending, v: bytes, done: bytes | None, t: float) -> bool:
+        return (
+            st.a is None
+            and st.b is None
+            and v == done
+            and abs(t - st.done_t) <= self.duplicate_window_s
+        )
+
+    def _drop_a(self, st: _Pending) -> None:
+        """The pending A is dropped unpaired: a lost period, or a duplicate if suspect."""
+        kind = "duplicates" if st.a_dup else "incomplete"
+        setattr(st.counters, kind, getattr(st.counters, kind) + 1)
+        setattr(self.counters, kind, getattr(self.counters, kind) + 1)
+        st.a = None
+
+    def _drop_b(self, st: _Pending) -> None:
+        """The pending B is dropped unpaired: an orphan, or a duplicate if suspect."""
+        kind = "duplicates" if st.b_dup else "orphan_b"
+        setattr(st.counters, kind, getattr(st.counters, kind) + 1)
+        setattr(self.counters, kind, getattr(self.counters, kind) + 1)
+        st.b = None
+
     def _pair_a(self, st: _Pending, key: int, cls: int, va: bytes, t: float) -> SkinReading | None:
         mc, c = st.counters, self.counters
         mc.frames_a += 1
-        if (
-            st.a is None
-            and st.b is None
-            and va == st.done_a
-            and abs(t - st.done_t) <= self.duplicate_window_s
-        ):
-            mc.duplicates += 1  # a repeat of the frame that completed the last reading
-            c.duplicates += 1
-            return None
+        suspect = self._suspect(st, va, st.done_a, t)
         if st.a is not None:
             if st.a == va and abs(t - st.ta) <= self.duplicate_window_s:
                 mc.duplicates += 1
                 c.duplicates += 1
                 return None
-            mc.incomplete += 1
-            c.incomplete += 1
+            self._drop_a(st)
         if st.b is not None:
             if abs(t - st.tb) <= self.pair_window_s:
                 mc.reordered += 1
                 c.reordered += 1
                 return self._complete(st, key, cls, va, t)
-            mc.orphan_b += 1
-            c.orphan_b += 1
-            st.b = None
-        st.a, st.ta = va, t
+            self._drop_b(st)
+        st.a, st.ta, st.a_dup = va, t, suspect
         return None
 
     def _pair_b(
@@ -361,30 +380,19 @@ class PeriodAssembler:
     ) -> SkinReading | None:
         mc, c = st.counters, self.counters
         mc.frames_b += 1
-        if (
-            st.a is None
-            and st.b is None
-            and vb == st.done_b
-            and abs(t - st.done_t) <= self.duplicate_window_s
-        ):
-            mc.duplicates += 1
-            c.duplicates += 1
-            return None
+        suspect = self._suspect(st, vb, st.done_b, t)
         if st.a is not None:
             if abs(t - st.ta) <= self.pair_window_s:
                 st.b, st.b_oor, st.b_flags = vb, oor, flags
                 return self._complete(st, key, cls, st.a, t)
-            mc.incomplete += 1
-            c.incomplete += 1
-            st.a = None
+            self._drop_a(st)
         if st.b is not None:
             if st.b == vb and abs(t - st.tb) <= self.duplicate_window_s:
                 mc.duplicates += 1
                 c.duplicates += 1
                 return None
-            mc.orphan_b += 1
-            c.orphan_b += 1
-        st.b, st.b_oor, st.b_flags, st.tb = vb, oor, flags, t
+            self._drop_b(st)
+        st.b, st.b_oor, st.b_flags, st.tb, st.b_dup = vb, oor, flags, t, suspect
         return None
 
     def _complete(self, st: _Pending, key: int, cls: int, a: bytes, t: float) -> SkinReading:

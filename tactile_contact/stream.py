@@ -52,6 +52,9 @@ SKIN_MASK = 0x700
 COHERENCE = 0.75
 #: Longest time [s] between recounts of a patch's live modules.
 LIVE_RECHECK_S = 0.005
+#: Longest time [s] between checks for modules that fell silent (a silent module is reported
+#: at most this long after its timeout).
+SILENCE_CHECK_S = 0.01
 
 
 class ReplayBus:
@@ -273,6 +276,7 @@ class SkinStream:
         #: list; ``kind`` groups repeats (``controller``, ``module b/t``) for rate limiting.
         self.events: list[tuple[int, str, str]] = []
         self._report_time = math.nan
+        self._silence_checked = -math.inf  # monotonic time of the last silence check [s]
         self._start: float | None = None  # monotonic time of the first reading [s]
 
     @staticmethod
@@ -411,6 +415,7 @@ class SkinStream:
 
     def _check_silence(self, now: float) -> None:
         """Report modules that fell silent (once each) since the last check."""
+        self._silence_checked = now
         for st in self._patches:
             for m in st.modules:
                 if not m.silent and not self._live(m, now) and self._start is not None:
@@ -439,7 +444,8 @@ class SkinStream:
     def poll(self, now: float) -> list[PatchFrame]:
         """Patch readings whose max wait has passed (call at least every few ms); also notices
         modules that fell silent (:attr:`events`)."""
-        self._check_silence(now)
+        if now - self._silence_checked >= SILENCE_CHECK_S:
+            self._check_silence(now)
         return [self._emit(st) for st in self._patches if now - st.first_pending >= self.max_wait_s]
 
     def _emit(self, st: _PatchState) -> PatchFrame:

@@ -22,12 +22,14 @@ lives in :mod:`tactile_contact.stream`.
 
 from __future__ import annotations
 
+import array
 import threading
 import time
 from pathlib import Path
 from typing import Any
 
 import can
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.publisher import Publisher
@@ -171,6 +173,7 @@ class SkinDriver(LifecycleNode):
         self._tare_srv: Any = None
         self._params: dict[str, Any] = {}
         self._finished_logged = False
+        self._ids_arrays: dict[str, array.array] = {}  # patch → its taxel ids, as sent
         self._event_log: dict[str, tuple[float, int]] = {}  # kind → (last logged, unsaid)
         self._warned: dict[str, float] = {}  # kind → monotonic time last logged
         self._diag_due = False  # a state change awaits its /diagnostics
@@ -518,10 +521,17 @@ class SkinDriver(LifecycleNode):
             msg.header.stamp = cm.stamp_from_seconds(max(f.stamp, 0.0))
         else:
             msg.header.stamp = self.get_clock().now().to_msg()
-        msg.taxel_ids = f.taxel_ids
-        msg.delta_c = f.delta_c
-        msg.raw = f.raw
-        msg.status = f.status
+        # array.array fields: the message setters check a list or a numpy array element by
+        # element in Python (measured: a fifth of the driver's time at 24 patches).
+        ids = self._ids_arrays.get(f.patch)
+        if ids is None:
+            ids = self._ids_arrays[f.patch] = array.array("H", f.taxel_ids)
+        msg.taxel_ids = ids
+        delta_c = array.array("f")
+        delta_c.frombytes(np.ascontiguousarray(f.delta_c, dtype=np.float32).tobytes())
+        msg.delta_c = delta_c
+        msg.raw = array.array("B", f.raw)
+        msg.status = array.array("B", f.status)
         pub.publish(msg)
 
     # -- services and diagnostics ---------------------------------------------------------

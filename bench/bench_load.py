@@ -1,0 +1,374 @@
+"""Load: skin_driver and contact_reconstruction over DDS, 24 patches at 50 Hz, ≥ 60 s.
+
+The size of a full arm: 24 hexagon patches (144 modules, 14 400 CAN frames/s), each pressed by
+its own sliding 12 mm sphere (one contact per patch, phases staggered), as separate processes
+talking over DDS as on a robot:
+
+- the driver process: ``skin_driver`` fed by a sender thread on a python-can virtual bus
+  (frames precomputed by the simulator before timing; the sender's CPU is not counted);
+- the reconstruction process: ``contact_reconstruction`` (``scripts/contact_reconstruction``);
+- this process: subscribes to every ``<patch>/contact`` and to ``/diagnostics``.
+
+Printed: CAN frames in, module readings and patch messages out, frames dropped (CAN frames
+sent but not counted by the driver, and taxel messages the reconstruction never received),
+end-to-end latency CAN receive → ContactState published (the node's ``latency`` field:
+stamp = receive time of the frame completing the reading; p50 / p99 / max), CPU of each node
+(process CPU time / wall time, 100 % = one core; the driver without its sender thread).
+Targets (issue 17): 0 dropped, p99 ≤ 5 ms, reconstruction ≤ 30 % of one core. With
+``--profile S`` py-spy samples the reconstruction for S s and the hottest functions are
+printed (self time and inclusive time).
+
+    python bench/bench_load.py [--seconds 60] [--patches 24] [--profile 15]
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import contextlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from bench_pipeline import multi_patch_layout  # noqa: E402
+
+PERIOD_MS = 20
+OUT = ROOT / "out" / "bench_load"
+
+
+# -- the driver process -------------------------------------------------------------------------
+def precompute(layout: Path, n: int, seconds: float) -> list[list]:
+    """Frames of every patch per period, each patch pressed by its own sliding sphere (4 s
+    sweep after 1 s unloaded, phases staggered), computed before timing."""
+    from tactile_contact.indenters import HertzSphere
+    from tactile_contact.layout import load_layout
+    from tactile_contact.nodes.skin_simulator import scenario_indentation
+    from tactile_contact.simulator import simulator_for_patch
+
+    count = int(seconds / (PERIOD_MS * 1e-3))
+    per_patch = []
+    for k, patch in enumerate(load_layout(layout).patches[:n]):
+        sim = simulator_for_patch(
+            patch, fine_cell=5e-4, realtime=True, period_s=PERIOD_MS * 1e-3, noise_cdc=0.6, seed=k
+        )
+        ind = scenario_indentation("sweep", patch, HertzSphere(6e-3), 2.0, 4.0)
+        rows = []
+        for j in range(count):
+            t = j * PERIOD_MS * 1e-3
+            rows.append(sim.period(None if t < 1.0 else ind, (t - 1.0 + 0.17 * k) % 4.0).messages)
+        per_patch.append(rows)
+    return [[m for p in per_patch for m in p[j]] for j in range(count)]
+
+
+def driver_process(layout: Path, n: int, channel: str) -> None:
+    """Run skin_driver with a frame sender until SIGINT; print READY and a final JSON line."""
+    import can
+    import rclpy
+    from can.interfaces import virtual
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from tactile_contact.nodes.skin_driver import SkinDriver
+
+    frames = precompute(layout, n, 5.0 + 4.0)  # 1 s unloaded then the sweep, cycled after
+    rclpy.init()
+    params = {
+        "layout": str(layout),
+        "interface": "virtual",
+        "channel": channel,
+        "period_ms": PERIOD_MS,
+        "max_wait_ms": float(PERIOD_MS),
+        "diagnostics_period_s": 1.0,
+    }
+    node = SkinDriver(parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
+    bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
+    stop = threading.Event()
+    sent = [0]
+    info: dict = {}
+
+    # The load generator puts each frame straight into the receive queue of the driver's bus,
+    # as the kernel does into a socket: VirtualBus.send deep-copies every frame for every
+    # receiver, which at 14 400 frames/s cost the sender thread (and, through the GIL, the
+    # driver sharing its process) a large share of a core. The frames are not modified by the
+    # driver, so each precomputed one is reused every cycle with a new timestamp.
+    receivers = [q for q in virtual.channels[channel] if q is not bus.queue]
+
+    def send() -> None:
+        info["sender_tid"] = threading.get_native_id()
+        t0 = time.monotonic()
+        j = 0
+        while not stop.wait(max(0.0, t0 + j * PERIOD_MS * 1e-3 - time.monotonic())):
+            # after the first pass, skip the unloaded second: contact on every patch
+            period = frames[j] if j < len(frames) else frames[50 + (j - 50) % (len(frames) - 50)]
+            now = time.time()
+            for msg in period:
+                msg.timestamp = now  # stamped when sent, as a bus receive would be
+                for q in receivers:
+                    q.put_nowait(msg)
+                sent[0] += 1
+            j += 1
+
+    sender = threading.Thread(target=send, name="sender", daemon=True)
+    signal.signal(signal.SIGUSR1, lambda *_: stop.set())  # stop sending, keep the driver up
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    sender.start()
+    time.sleep(0.1)
+    print("READY " + json.dumps({"sender_tid": info["sender_tid"]}), flush=True)
+    with contextlib.suppress(KeyboardInterrupt, ExternalShutdownException):
+        executor.spin()
+    stop.set()
+    sender.join(2.0)
+    time.sleep(0.5)  # the driver drains what is queued
+    stream = node._stream
+    c = stream.assembler.counters
+    result = {
+        "sent": sent[0],
+        "frames": c.frames,
+        "readings": c.readings,
+        "rejected": c.rejected,
+        "incomplete": c.incomplete,
+        "orphan_b": c.orphan_b,
+        "published": sum(p.published for p in stream._patches),
+        "stale_publications": sum(p.stale_publications for p in stream._patches),
+    }
+    node.destroy_node()
+    bus.shutdown()
+    rclpy.try_shutdown()
+    print("RESULT " + json.dumps(result), flush=True)
+
+
+# -- the measuring process ----------------------------------------------------------------------
+def cpu_seconds(pid: int, exclude_tid: int | None = None) -> float:
+    import psutil
+
+    proc = psutil.Process(pid)
+    if exclude_tid is None:
+        t = proc.cpu_times()
+        return t.user + t.system
+    return sum(t.user_time + t.system_time for t in proc.threads() if t.id != exclude_tid)
+
+
+def profile(pid: int, seconds: float, skip: str = "", name: str = "recon") -> str:
+    """py-spy samples of ``pid`` → the hottest functions (self and inclusive share); stacks
+    through a function named ``skip`` (the load generator) are left out."""
+    spy = shutil.which("py-spy") or str(Path(sys.executable).with_name("py-spy"))
+    if not Path(spy).exists():
+        return "py-spy not installed (pip install py-spy): no profile"
+    out = OUT / f"{name}_profile.txt"
+    subprocess.run(
+        [
+            spy,
+            "record",
+            "-p",
+            str(pid),
+            "-d",
+            str(int(seconds)),
+            "-r",
+            "200",
+            "-f",
+            "raw",
+            "-o",
+            str(out),
+            "--nonblocking",
+        ],
+        check=True,
+        capture_output=True,
+    )
+    own: collections.Counter[str] = collections.Counter()
+    incl: collections.Counter[str] = collections.Counter()
+    total = 0
+    for line in out.read_text().splitlines():
+        stack, _, count = line.rpartition(" ")
+        n = int(count)
+        frames = [
+            f.split(" (")[0] + " (" + f.split(" (")[1].split(":")[0] + ")" if " (" in f else f
+            for f in stack.split(";")
+        ]
+        total += n
+        own[frames[-1]] += n
+        for f in set(frames):
+            incl[f] += n
+    idle = sum(n for f, n in own.items() if "wait" in f or "select" in f or "spin_once" in f)
+    lines = [f"{total} samples over {seconds:.0f} s ({idle / max(total, 1):.0%} waiting)"]
+    lines.append("self time:")
+    lines += [f"  {n / total:6.1%}  {f}" for f, n in own.most_common(15)]
+    lines.append("inclusive time:")
+    lines += [f"  {n / total:6.1%}  {f}" for f, n in incl.most_common(25)]
+    return "\n".join(lines)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seconds", type=float, default=60.0, help="measured time (≥ 60 s)")
+    ap.add_argument("--patches", type=int, default=24)
+    ap.add_argument("--warmup", type=float, default=8.0)
+    ap.add_argument("--profile", type=float, default=0.0, help="py-spy both nodes for S s")
+    ap.add_argument(
+        "--driver-only", action="store_true", help="no reconstruction (the driver's own capacity)"
+    )
+    ap.add_argument(
+        "--driver-child", nargs=3, metavar=("LAYOUT", "N", "CHANNEL"), help=argparse.SUPPRESS
+    )
+    args = ap.parse_args()
+    if args.driver_child:
+        driver_process(Path(args.driver_child[0]), int(args.driver_child[1]), args.driver_child[2])
+        return 0
+
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+
+    from tactile_contact.build import build_layout
+    from tactile_contact.msg import ContactState
+    from tactile_contact.nodes.common import SENSOR_QOS
+
+    n = args.patches
+    OUT.mkdir(parents=True, exist_ok=True)
+    layout = multi_patch_layout(n, OUT)
+    bundles = OUT / f"bundles_{n}" if n != 24 else OUT / "bundles"
+    t = time.monotonic()
+    build_layout(layout, bundles, jobs=2)  # up-to-date bundles are kept
+    print(f"bundles ready ({time.monotonic() - t:.0f} s)")
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    recon_cmd = [
+        sys.executable,
+        str(ROOT / "scripts" / "contact_reconstruction"),
+        "--ros-args",
+        "-p",
+        f"bundles_dir:={bundles}",
+        "-p",
+        "diagnostics_period:=1.0",
+    ]
+    if args.driver_only:  # a process that does nothing, so that the rest stays the same
+        recon_cmd = [sys.executable, "-c", "import time; time.sleep(1e6)"]
+    recon = subprocess.Popen(
+        recon_cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env
+    )
+    driver = subprocess.Popen(
+        [sys.executable, __file__, "--driver-child", str(layout), str(n), "bench_load"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        env=env,
+        text=True,
+    )
+    assert driver.stdout is not None
+    line = driver.stdout.readline()
+    if not line.startswith("READY"):
+        print(f"driver did not start: {line!r}")
+        return 1
+    sender_tid = json.loads(line.split(" ", 1)[1])["sender_tid"]
+
+    rclpy.init()
+    probe = Node("load_probe")
+    latency: list[float] = []
+    contacts = collections.Counter()
+    recon_frames: dict[str, int] = {}
+    measuring = threading.Event()
+
+    def on_contact(m: ContactState) -> None:
+        if measuring.is_set():
+            contacts[m.patch] += 1
+            if m.in_contact:
+                latency.append(m.latency)
+
+    def on_diag(msg: DiagnosticArray) -> None:
+        for s in msg.status:
+            if s.name.startswith("contact_reconstruction: "):
+                values = {kv.key: kv.value for kv in s.values}
+                if "frames" in values:
+                    recon_frames[s.name.split(": ", 1)[1]] = int(values["frames"])
+
+    for k in range(n):
+        probe.create_subscription(ContactState, f"patch{k:02d}/contact", on_contact, SENSOR_QOS)
+    probe.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 50)
+    executor = SingleThreadedExecutor()
+    executor.add_node(probe)
+    stop = threading.Event()
+    spinner = threading.Thread(
+        target=lambda: [executor.spin_once(timeout_sec=0.05) for _ in iter(stop.is_set, True)]
+    )
+    spinner.start()
+    time.sleep(args.warmup)  # discovery, calibration, numba warm-up
+    measuring.set()
+    w0 = time.monotonic()
+    d0, r0 = cpu_seconds(driver.pid, sender_tid), cpu_seconds(recon.pid)
+    time.sleep(args.seconds)
+    wall = time.monotonic() - w0
+    d1, r1 = cpu_seconds(driver.pid, sender_tid), cpu_seconds(recon.pid)
+    measuring.clear()
+    prof = profile(recon.pid, args.profile) if args.profile > 0 and not args.driver_only else ""
+    dprof = profile(driver.pid, args.profile, "send", "driver") if args.profile > 0 else ""
+    driver.send_signal(signal.SIGUSR1)  # frames stop; the driver drains and publishes the rest
+    time.sleep(3.0)  # and the reconstruction's diagnostics count what it received
+    frames_seen = sum(recon_frames.values())
+    driver.send_signal(signal.SIGINT)
+    out, _ = driver.communicate(timeout=60)
+    result = json.loads(out.strip().splitlines()[-1].split(" ", 1)[1])
+    recon.send_signal(signal.SIGINT if not args.driver_only else signal.SIGTERM)
+    recon.wait(timeout=30)
+    stop.set()
+    spinner.join(5.0)
+    executor.shutdown()
+    probe.destroy_node()
+    rclpy.try_shutdown()
+
+    lat = np.asarray(latency) * 1e3
+    d_cpu, r_cpu = (d1 - d0) / wall, (r1 - r0) / wall
+    dropped_can = result["sent"] - result["frames"]
+    published = result["published"]
+    dropped_dds = published - frames_seen if not args.driver_only else 0
+    print(
+        f"{n} patches at {1000 // PERIOD_MS} Hz, one contact each, measured {wall:.0f} s "
+        f"(after {args.warmup:.0f} s warm-up)"
+    )
+    print(
+        f"CAN frames in: {result['sent']} sent, {result['frames']} received by the driver "
+        f"(dropped {dropped_can}); rejected {result['rejected']}, incomplete periods "
+        f"{result['incomplete']}, orphan B {result['orphan_b']}"
+    )
+    print(
+        f"readings out: {result['readings']} module readings in {published} TaxelArray "
+        f"messages ({result['stale_publications']} with a stale module); the reconstruction "
+        f"received {frames_seen} (dropped {dropped_dds}); "
+        f"{sum(contacts.values())} ContactState in the window"
+    )
+    if lat.size:
+        print(
+            f"latency CAN receive → contact published: p50 {np.percentile(lat, 50):.2f} ms, "
+            f"p99 {np.percentile(lat, 99):.2f} ms, max {lat.max():.2f} ms "
+            f"({lat.size} contacts)"
+        )
+    print(
+        f"CPU: driver {d_cpu:.0%} of one core (sender thread excluded), reconstruction {r_cpu:.0%}"
+    )
+    ok_lat = lat.size > 0 and np.percentile(lat, 99) <= 5.0
+    print(
+        f"targets: 0 dropped {'met' if dropped_can == 0 and dropped_dds == 0 else 'MISSED'}; "
+        f"p99 ≤ 5 ms {'met' if ok_lat else 'MISSED'}; reconstruction ≤ 30 % "
+        f"{'met' if r_cpu <= 0.30 else 'MISSED'}"
+    )
+    if prof:
+        print("reconstruction profile (py-spy):")
+        print(prof)
+    if dprof:
+        print("driver profile (py-spy, the load generator's thread left out):")
+        print(dprof)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
