@@ -457,7 +457,9 @@ def presses_from_bag(bag: Path, patch: PatchLayout, *, min_force: float = 0.05) 
 
     topics = (f"{patch.name}/taxels", f"{patch.name}/contact_truth")
     try:
-        msgs = read_messages(bag, [*topics, *(f"/{t}" for t in topics)])
+        # Everything, then filtered: the bag's names may or may not carry the leading slash,
+        # and asking for a topic a bag lacks is an error of its own.
+        msgs = [m for m in read_messages(bag) if m[0].lstrip("/") in topics]
     except Exception as e:  # every unreadable bag is one clear error
         raise CalibrationError(f"{bag}: cannot read the bag ({e})") from None
     frames: dict[int, Any] = {}

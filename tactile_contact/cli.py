@@ -62,17 +62,6 @@ def _bringup(args: argparse.Namespace) -> int:
     return 0
 
 
-def _taxel_topics(bag: str) -> list[str]:
-    """The bag's TaxelArray topics: what a reconstruction node reads (replaying the recorded
-    contact summaries too would mix them with the node's own on the same topic)."""
-    from rosbags.rosbag2 import Reader
-
-    with Reader(bag) as reader:
-        return sorted(
-            {c.topic for c in reader.connections if c.msgtype == "tactile_contact/msg/TaxelArray"}
-        )
-
-
 def _replay(args: argparse.Namespace) -> int:
     import rclpy
     from rclpy.context import Context
@@ -102,7 +91,8 @@ def _replay(args: argparse.Namespace) -> int:
         nodes.append(recon)
         player_node = rclpy.create_node("tactile_contact_player", context=context)
         nodes.append(player_node)
-        player = BagPlayer(player_node, args.bag, topics=args.topics or None, rate=args.rate)
+        # Only the taxel streams by default: the recorded summaries would mix with the node's own.
+        player = BagPlayer(player_node, args.bag, topics=args.topics or taxels, rate=args.rate)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(recon)
         executor.add_node(player_node)
