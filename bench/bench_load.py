@@ -49,7 +49,7 @@ OUT = ROOT / "out" / "bench_load"
 
 
 # -- the driver process -------------------------------------------------------------------------
-def precompute(layout: Path, n: int, seconds: float) -> list[list]:
+def precompute(layout: Path, n: int, seconds: float, pressed: int) -> list[list]:
     """Frames of every patch per period, each patch pressed by its own sliding sphere (4 s
     sweep after 1 s unloaded, phases staggered), computed before timing."""
     from tactile_contact.indenters import HertzSphere
@@ -72,7 +72,7 @@ def precompute(layout: Path, n: int, seconds: float) -> list[list]:
     return [[m for p in per_patch for m in p[j]] for j in range(count)]
 
 
-def driver_process(layout: Path, n: int, channel: str) -> None:
+def driver_process(layout: Path, n: int, channel: str, pressed: int) -> None:
     """Run skin_driver with a frame sender until SIGINT; print READY and a final JSON line."""
     import can
     import rclpy
@@ -82,7 +82,7 @@ def driver_process(layout: Path, n: int, channel: str) -> None:
 
     from tactile_contact.nodes.skin_driver import SkinDriver
 
-    frames = precompute(layout, n, 5.0 + 4.0)  # 1 s unloaded then the sweep, cycled after
+    frames = precompute(layout, n, 5.0 + 4.0, pressed)  # 1 s unloaded then the sweep, cycled after
     rclpy.init()
     params = {
         "layout": str(layout),
@@ -214,17 +214,19 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seconds", type=float, default=60.0, help="measured time (≥ 60 s)")
     ap.add_argument("--patches", type=int, default=24)
+    ap.add_argument("--contacts", type=int, default=-1, help="patches pressed (default: all)")
     ap.add_argument("--warmup", type=float, default=8.0)
     ap.add_argument("--profile", type=float, default=0.0, help="py-spy both nodes for S s")
     ap.add_argument(
         "--driver-only", action="store_true", help="no reconstruction (the driver's own capacity)"
     )
     ap.add_argument(
-        "--driver-child", nargs=3, metavar=("LAYOUT", "N", "CHANNEL"), help=argparse.SUPPRESS
+        "--driver-child", nargs=4, metavar=("LAYOUT", "N", "CHANNEL", "K"), help=argparse.SUPPRESS
     )
     args = ap.parse_args()
     if args.driver_child:
-        driver_process(Path(args.driver_child[0]), int(args.driver_child[1]), args.driver_child[2])
+        layout_, n_, channel_, k_ = args.driver_child
+        driver_process(Path(layout_), int(n_), channel_, int(k_))
         return 0
 
     import rclpy
@@ -237,6 +239,7 @@ def main() -> int:
     from tactile_contact.nodes.common import SENSOR_QOS
 
     n = args.patches
+    k = n if args.contacts < 0 else min(args.contacts, n)
     OUT.mkdir(parents=True, exist_ok=True)
     layout = multi_patch_layout(n, OUT)
     bundles = OUT / f"bundles_{n}" if n != 24 else OUT / "bundles"
@@ -259,7 +262,7 @@ def main() -> int:
         recon_cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env
     )
     driver = subprocess.Popen(
-        [sys.executable, __file__, "--driver-child", str(layout), str(n), "bench_load"],
+        [sys.executable, __file__, "--driver-child", str(layout), str(n), "bench_load", str(k)],
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         env=env,
@@ -292,8 +295,8 @@ def main() -> int:
                 if "frames" in values:
                     recon_frames[s.name.split(": ", 1)[1]] = int(values["frames"])
 
-    for k in range(n):
-        probe.create_subscription(ContactState, f"patch{k:02d}/contact", on_contact, SENSOR_QOS)
+    for j in range(n):
+        probe.create_subscription(ContactState, f"patch{j:02d}/contact", on_contact, SENSOR_QOS)
     probe.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 50)
     executor = SingleThreadedExecutor()
     executor.add_node(probe)
@@ -304,6 +307,7 @@ def main() -> int:
     spinner.start()
     time.sleep(args.warmup)  # discovery, calibration, numba warm-up
     measuring.set()
+    load0 = os.getloadavg()[0]
     w0 = time.monotonic()
     d0, r0 = cpu_seconds(driver.pid, sender_tid), cpu_seconds(recon.pid)
     time.sleep(args.seconds)
@@ -332,8 +336,9 @@ def main() -> int:
     published = result["published"]
     dropped_dds = published - frames_seen if not args.driver_only else 0
     print(
-        f"{n} patches at {1000 // PERIOD_MS} Hz, one contact each, measured {wall:.0f} s "
-        f"(after {args.warmup:.0f} s warm-up)"
+        f"{n} patches at {1000 // PERIOD_MS} Hz, {k} of them pressed (one contact each), "
+        f"measured {wall:.0f} s (after {args.warmup:.0f} s warm-up); load average before: "
+        f"{load0:.2f}"
     )
     print(
         f"CAN frames in: {result['sent']} sent, {result['frames']} received by the driver "
