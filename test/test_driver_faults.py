@@ -12,6 +12,7 @@ The harness (a driver and a listener on one executor, frames sent from a thread 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import random
 import select
@@ -381,3 +382,84 @@ def test_serial_adapter_unplugged_is_reported_retried_with_backoff_and_recovered
         h.close()
         with contextlib.suppress(OSError):
             adapter.unplug()
+
+
+# -- socketcan: an interface set down, removed and added back (needs vcan) ---------------------
+VCAN = "vtc17"
+
+
+def _ip(*args: str) -> bool:
+    import subprocess
+
+    return subprocess.run(["ip", "link", *args], capture_output=True).returncode == 0
+
+
+@pytest.fixture
+def vcan() -> Any:
+    if not _ip("add", "dev", VCAN, "type", "vcan"):
+        pytest.skip("needs a vcan interface (kernel module vcan and CAP_NET_ADMIN); none here")
+    _ip("set", "up", VCAN)
+    yield VCAN
+    _ip("del", VCAN)
+
+
+def test_socketcan_interface_down_and_removed_then_back(ros_context: Any, vcan: str) -> None:
+    from test.test_driver_node import Harness
+
+    h = Harness(
+        ros_context,
+        vcan,
+        interface="socketcan",
+        reconnect_after_errors=3,
+        reconnect_interval_s=0.1,
+        reconnect_max_interval_s=0.4,
+    )
+    stop = threading.Event()
+
+    def feed() -> None:
+        sim, k = simulator(seed=10), 0
+        while not stop.wait(PERIOD_S):
+            with contextlib.suppress(can.CanError, OSError):
+                tx = can.Bus(interface="socketcan", channel=vcan)
+                for m in sim.period(None, k * PERIOD_S).messages:
+                    tx.send(m)
+                tx.shutdown()
+            k += 1
+
+    threading.Thread(target=feed, daemon=True).start()
+    try:
+        h.wait_matched()
+        assert h.spin_until(lambda: len(h.taxels) >= 10, 5.0)
+        for down in (("set", "down", vcan), ("del", vcan)):  # down, then removed
+            assert _ip(*down)
+            # down: the bus reopens at once and reports no frames (WARN); removed: it cannot
+            # reopen until the interface is back (ERROR)
+            level = "1" if down[0] == "set" else "2"
+            assert h.spin_until(lambda level=level: latest(h, "CAN bus") == level, 3.0), down
+            time.sleep(0.5)
+            if down[0] == "del":
+                assert _ip("add", "dev", vcan, "type", "vcan")
+            assert _ip("set", "up", vcan)
+            n = len(h.taxels)
+            assert h.spin_until(lambda n=n: len(h.taxels) >= n + 10, 5.0), f"not back after {down}"
+        assert int(latest(h, "CAN bus", "reconnects") or 0) >= 1
+    finally:
+        stop.set()
+        h.close()
+
+
+@pytest.mark.parametrize(
+    ("exc", "gone"),
+    [
+        (can.CanOperationError("Error receiving: Network is down", errno.ENETDOWN), "down"),
+        (OSError(errno.ENODEV, "No such device"), "removed"),
+        (can.CanOperationError("Could not read from serial device"), ""),
+        (can.CanOperationError("Cannot operate on a closed bus"), ""),
+    ],
+)
+def test_socketcan_errors_that_mean_the_interface_is_gone(exc: Exception, gone: str) -> None:
+    """As python-can's socketcan raises them: reopened at once, not after a run of errors
+    (a socketcan socket reports ENETDOWN once, then waits quietly)."""
+    from tactile_contact.nodes.skin_driver import _interface_gone
+
+    assert _interface_gone(exc) == gone

@@ -23,6 +23,7 @@ lives in :mod:`tactile_contact.stream`.
 from __future__ import annotations
 
 import array
+import errno
 import threading
 import time
 from pathlib import Path
@@ -56,6 +57,21 @@ WARN_THROTTLE_S = 5.0
 EVENT_DIAG_MIN_S = 0.1
 SUCCESS = TransitionCallbackReturn.SUCCESS
 FAILURE = TransitionCallbackReturn.FAILURE
+
+
+def _interface_gone(exc: BaseException) -> str:
+    """ "down" / "removed" when a receive error says the network interface is, else ""."""
+    # python-can's socketcan raises CanOperationError(..., error_code=errno) from the OSError
+    errno_ = (
+        getattr(exc, "errno", None)
+        or getattr(exc, "error_code", None)
+        or getattr(exc.__cause__, "errno", None)
+    )
+    if errno_ == errno.ENETDOWN:
+        return "down"
+    if errno_ in (errno.ENODEV, errno.ENXIO):
+        return "removed"
+    return ""
 
 
 def default_layout_path() -> Path:
@@ -173,6 +189,7 @@ class SkinDriver(LifecycleNode):
         self._tare_srv: Any = None
         self._params: dict[str, Any] = {}
         self._finished_logged = False
+        self._last_frame = -1.0  # monotonic time of the last frame received (-1: none yet)
         self._ids_arrays: dict[str, array.array] = {}  # patch → its taxel ids, as sent
         self._event_log: dict[str, tuple[float, int]] = {}  # kind → (last logged, unsaid)
         self._warned: dict[str, float] = {}  # kind → monotonic time last logged
@@ -413,12 +430,24 @@ class SkinDriver(LifecycleNode):
                 reconnect = policy.error(exc)
             if self._due("bus error"):
                 log.warning(f"CAN bus error ({policy.errors} so far): {type(exc).__name__}: {exc}")
-            if reconnect:
-                self._drop_bus(f"{p['reconnect_after_errors']} consecutive bus errors")
+            gone = _interface_gone(exc)
+            if reconnect or gone:
+                # A socketcan socket reports ENETDOWN / ENODEV once, then waits quietly: the
+                # bus is reopened at once, not after a run of errors that would never come.
+                why = (
+                    f"interface {gone}"
+                    if gone
+                    else f"{p['reconnect_after_errors']} consecutive bus errors"
+                )
+                self._drop_bus(why)
             else:
                 self._stop.wait(min(p["receive_timeout_s"], 0.01))
             return
         policy.ok()
+        if msg is not None:
+            self._last_frame = time.monotonic()
+            if self._backoff is not None and self._backoff.failures and not msg.is_error_frame:
+                self._backoff.reset()  # frames flow: the next failure starts short again
         if msg is None and getattr(bus, "finished", False) and not self._finished_logged:
             log.info(f"replay of {p['replay_file']} finished")
             self._finished_logged = True
@@ -445,8 +474,7 @@ class SkinDriver(LifecycleNode):
         # (socketcan needs `ip link set can0 type can restart-ms 100` to restart by itself).
         assert self._backoff is not None
         if bus_off is not None and time.monotonic() - bus_off >= self._backoff.wait_s:
-            with self._lock:
-                stream.controller.bus_off_since = time.monotonic()
+            self._backoff.failed()  # the next reopen for a bus-off waits longer
             self._drop_bus("controller bus-off with no data since")
 
     def _due(self, kind: str) -> bool:
@@ -503,11 +531,15 @@ class SkinDriver(LifecycleNode):
             self._next_attempt = time.monotonic() + self._backoff.wait_s
             return
         self._bus = bus
-        self._backoff.reset()
         with self._lock:
             self._policy.reconnects += 1
             if self._stream is not None:
                 self._stream.assembler.reset()  # half periods from before the gap
+                controller = self._stream.controller
+                if controller.bus_off_since is not None:  # still bus-off: wait from now
+                    controller.bus_off_since = time.monotonic()
+                else:
+                    self._backoff.reset()
         self.get_logger().info(f"reconnected to {self._bus_name()}")
         self._publish_diagnostics(window=False)
 
@@ -574,6 +606,10 @@ class SkinDriver(LifecycleNode):
                 wait = max(0.0, self._next_attempt - time.monotonic())
                 tries = bus_values["reconnect_attempts"]
                 message = f"closed, reopening in {wait:.1f} s ({tries} attempts so far)"
+            quiet = time.monotonic() - self._last_frame if self._last_frame >= 0 else -1.0
+            timeout = self._params.get("module_timeout_ms", 500.0) * 1e-3
+            if bus_open and not finished and quiet > timeout:
+                level, message = max(level, cm.WARN), message + f", no frames for {quiet:.1f} s"
             if state == BUS_OFF:
                 level, message = cm.ERROR, message + ", controller bus-off"
             elif state in (ERROR_PASSIVE, WARNING):
@@ -584,6 +620,7 @@ class SkinDriver(LifecycleNode):
                 **bus_values,
                 **controller,
                 "next_reconnect_wait_s": self._backoff.wait_s if self._backoff else 0.0,
+                "seconds_since_last_frame": quiet,
             }
             if bus_values["bus_errors_in_window"]:
                 level = max(level, cm.WARN)
