@@ -13,8 +13,11 @@ A thin lifecycle adapter over the core library (docs/driver.md has the full desc
 
 With ``autostart`` (default) the node configures and activates itself, so it runs without a
 lifecycle manager. The receive thread never raises: bus errors are counted, warned about at
-most every few seconds, and ``reconnect_after_errors`` consecutive errors close and reopen the
-bus; bad frames are counted per reason by the assembler.
+most every few seconds, and ``reconnect_after_errors`` consecutive errors (or one that says
+the interface is down or gone) close the bus and reopen it with exponential backoff;
+error frames drive the controller state (bus-off is reported, and reopened after the backoff
+if no data follows); modules silent past the timeout are reported at once and their taxels
+flagged invalid; bad frames are counted per kind by the assembler.
 
 The ROS-free part (bus opening, log replay, gathering module readings into patch messages)
 lives in :mod:`tactile_contact.stream`.
