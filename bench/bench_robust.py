@@ -63,6 +63,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
 from _crb import Truth, crb  # noqa: E402
+from bench_accuracy import positions  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
 from tactile_contact.build import build_layout  # noqa: E402
@@ -146,19 +147,6 @@ class Layout:
 
     def to_deflection(self, dc: np.ndarray) -> np.ndarray:
         return delta_c_to_compression(dc, self.thickness, self.epsilon_r, self.area)
-
-
-def positions(xy: np.ndarray, modules=(4, 2)) -> list[tuple[str, np.ndarray]]:
-    """Over taxel 3, between taxels 7 and 11, at the centroid of 3, 7, 11 of each module."""
-    out = []
-    for k in modules:
-        m = xy[12 * k : 12 * k + 12]
-        out += [
-            ("over a taxel", m[3]),
-            ("between two", (m[7] + m[11]) / 2),
-            ("between three", (m[3] + m[7] + m[11]) / 3),
-        ]
-    return out
 
 
 def _truth(lay: Layout, name: str) -> Truth:

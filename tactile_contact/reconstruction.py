@@ -353,20 +353,7 @@ class Reconstructor:
         scale_free: bool = False,
         quantised: bool = True,
     ) -> ContactResult:
-        res = self._solve_used(delta, ok, want_t, want_d, sigma, scale_free, quantised)
         used = int(np.count_nonzero(ok))
-        return res if res.taxels_used == used else dataclasses.replace(res, taxels_used=used)
-
-    def _solve_used(
-        self,
-        delta: NDArray,
-        ok: NDArray,
-        want_t: bool,
-        want_d: bool,
-        sigma: NDArray,
-        scale_free: bool,
-        quantised: bool,
-    ) -> ContactResult:
         active = int(np.count_nonzero(ok & (np.abs(delta) > self.contact_threshold)))
         start = None
         if self.detector is not None:
@@ -377,10 +364,10 @@ class Reconstructor:
                 self._sigma_seen = sigma
             hit, k = self.detector.detect(delta, scale_free)
             if not hit:
-                return self._zero(want_t, want_d, active, int(np.count_nonzero(ok)))
+                return self._zero(want_t, want_d, active, used)
             start = self.detector.centres[k]
         elif active == 0:
-            return self._zero(want_t, want_d, 0)
+            return self._zero(want_t, want_d, 0, used)
         t0 = time.perf_counter()
         success, iterations, path, refined = True, 0, self.method, False
         fit = None
@@ -391,7 +378,7 @@ class Reconstructor:
         else:
             q, success, iterations, path, refined, fit = self._grid(delta, ok)
         return self._result(
-            q, fit, delta, ok, path, success, iterations, refined, t0, want_t, want_d, active
+            q, fit, delta, ok, path, success, iterations, refined, t0, want_t, want_d, active, used
         )
 
     def _grid(self, delta: NDArray, ok: NDArray) -> tuple[NDArray, bool, int, str, bool, Any]:
@@ -498,6 +485,7 @@ class Reconstructor:
         want_t: bool,
         want_d: bool,
         active: int,
+        used: int,
     ) -> ContactResult:
         dt = time.perf_counter() - t0
         if fit is not None and len(fit) == 3:
@@ -556,6 +544,7 @@ class Reconstructor:
             active,
             refined,
             contacts,
+            taxels_used=used,
         )
 
     def _cached(self, key: bytes) -> Any:
