@@ -84,9 +84,15 @@ def _replay(args: argparse.Namespace) -> int:
     rclpy.init(context=context)
     nodes = []
     try:
+        # A replay must reconstruct every recorded frame, even when this machine is slower than
+        # the one that recorded: a queue as deep as the bag (up to the 1000 the parameter allows)
+        # instead of the live default of 1.
         recon = ContactReconstructionNode(
             context=context,
-            parameter_overrides=[rclpy.parameter.Parameter("bundles_dir", value=args.bundles)],
+            parameter_overrides=[
+                rclpy.parameter.Parameter("bundles_dir", value=args.bundles),
+                rclpy.parameter.Parameter("queue_depth", value=min(max(len(raw), 1), 1000)),
+            ],
         )
         nodes.append(recon)
         player_node = rclpy.create_node("tactile_contact_player", context=context)
@@ -97,11 +103,21 @@ def _replay(args: argparse.Namespace) -> int:
         executor.add_node(recon)
         executor.add_node(player_node)
         thread = threading.Thread(target=player.play, daemon=True)
-        time.sleep(0.5)  # let discovery match publishers and subscribers
+        time.sleep(args.delay)  # let discovery match this process with other subscribers
         thread.start()
         while thread.is_alive():
             executor.spin_once(timeout_sec=0.05)
-        for _ in range(20):
+
+        # Drain the queue: on until the node has taken every frame played, or 1 s brings none.
+        def taken() -> int:
+            return sum(p.stats.frames for p in recon.pipelines.values())
+
+        seen, quiet_until = taken(), time.monotonic() + 1.0
+        while seen < player.published and time.monotonic() < quiet_until:
+            executor.spin_once(timeout_sec=0.05)
+            if taken() > seen:
+                seen, quiet_until = taken(), time.monotonic() + 1.0
+        for _ in range(4):
             executor.spin_once(timeout_sec=0.05)
         print(f"replayed {player.published} messages from {args.bag}")
     finally:
@@ -136,6 +152,12 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("bag")
     r.add_argument("--bundles", default="bundles")
     r.add_argument("--rate", type=float, default=1.0)
+    r.add_argument(
+        "--delay",
+        type=float,
+        default=0.5,
+        help="seconds to wait before playing, for subscribers in other processes to match",
+    )
     r.add_argument(
         "--topics", nargs="*", default=[], help="topics to replay (default: the TaxelArray ones)"
     )
