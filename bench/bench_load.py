@@ -50,8 +50,9 @@ OUT = ROOT / "out" / "bench_load"
 
 # -- the driver process -------------------------------------------------------------------------
 def precompute(layout: Path, n: int, seconds: float, pressed: int) -> list[list]:
-    """Frames of every patch per period, each patch pressed by its own sliding sphere (4 s
-    sweep after 1 s unloaded, phases staggered), computed before timing."""
+    """Frames of every patch per period, the first ``pressed`` patches each pressed by its own
+    sliding sphere (4 s sweep after 1 s unloaded, phases staggered), the others idle (noise
+    only), computed before timing."""
     from tactile_contact.indenters import HertzSphere
     from tactile_contact.layout import load_layout
     from tactile_contact.nodes.skin_simulator import scenario_indentation
@@ -67,7 +68,8 @@ def precompute(layout: Path, n: int, seconds: float, pressed: int) -> list[list]
         rows = []
         for j in range(count):
             t = j * PERIOD_MS * 1e-3
-            rows.append(sim.period(None if t < 1.0 else ind, (t - 1.0 + 0.17 * k) % 4.0).messages)
+            touch = None if t < 1.0 or k >= pressed else ind
+            rows.append(sim.period(touch, (t - 1.0 + 0.17 * k) % 4.0).messages)
         per_patch.append(rows)
     return [[m for p in per_patch for m in p[j]] for j in range(count)]
 
