@@ -440,27 +440,14 @@ class Reconstructor:
         RENDER_SUB² points per cell, scaled so that each contact's cells carry its force (the
         flat punch's integrable edge singularity makes point means uneven, not wrong in sum;
         a part beyond the skin mask lands on the cells at its edge)."""
-        p = self.params
-        young, nu = float(p["young"]), float(p["poisson"])
-        cell = self.traction_grid.cell_size
+        from tactile_contact._round_kernels import render
+        from tactile_contact.round_contact import FAMILIES
+
         out = np.zeros(len(self._centers))
-        sub = (np.arange(RENDER_SUB) + 0.5) / RENDER_SUB - 0.5
-        off = np.stack(np.meshgrid(sub, sub, indexing="ij"), axis=-1).reshape(-1, 2) * cell
-        for fit in fits:
-            near = np.flatnonzero(np.hypot(*(self._centers - fit.center).T) <= fit.radius + cell)
-            pts = self._centers[near, None, :] + off[None] - np.asarray(fit.center)
-            r = np.minimum(np.hypot(pts[..., 0], pts[..., 1]), fit.radius * 1.000001)
-            ind = fit.indenter(young, nu)
-            inside = r < fit.radius
-            # The punch's p ∝ (a² − r²)^(−½) is infinite at r = a: sample it half a sub-cell in.
-            rr = np.minimum(r, fit.radius - 0.5 * cell / RENDER_SUB)
-            p_r = ind.pressure_at_radius(np.maximum(rr, 0.0), fit.force, young, nu)
-            vals = np.where(inside, p_r, 0.0)
-            cells = vals.mean(axis=1)
-            total = float(cells.sum()) * self.traction_grid.cell_area
-            if total > 0:
-                cells *= fit.force / total
-            out[near] += cells
+        cell = self.traction_grid.cell_size
+        for f in fits:
+            punch = FAMILIES[f.family] == "punch"
+            render(self._centers, cell, RENDER_SUB, *f.center, f.radius, f.force, punch, out)
         return out
 
     def _deflection_of(self, fits: list[Any]) -> NDArray[np.float64]:

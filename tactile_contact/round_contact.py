@@ -16,6 +16,7 @@ linearly in log a. No ROS import.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -72,27 +73,18 @@ class RoundTables:
 
     def response(self, family: int, log_radius: float, r: ArrayLike) -> NDArray[np.float64]:
         """R [m/N] at distances r [m] for a contact radius exp(log_radius) (interpolated)."""
+        from tactile_contact._round_kernels import responses
+
         t0, dt = self.log_grid
-        u = min(max((log_radius - t0) / dt, 0.0), len(self.radii) - 1.0)
-        k = min(int(u), len(self.radii) - 2)
-        w = u - k
-        lo, hi = _lookup(self.table[family, k : k + 2], self.step, r)
-        return (1.0 - w) * lo + w * hi
+        dist = np.asarray(r, dtype=np.float64)
+        flat = responses(self.table, family, t0, dt, self.step, log_radius, dist.reshape(-1))
+        return flat.reshape(dist.shape)
 
     def predict(self, fit: RoundFit, taxel_xy: ArrayLike) -> NDArray[np.float64]:
         """(K,) compression [m] that the contact ``fit`` makes at ``taxel_xy`` (K, 2) [m]."""
         xy = np.asarray(taxel_xy, dtype=np.float64)
         r = np.hypot(*(xy - np.asarray(fit.center)).T)
         return fit.force * self.response(fit.family, math.log(fit.radius), r)
-
-
-def _lookup(table: NDArray, step: float, r: ArrayLike) -> NDArray[np.float64]:
-    """Linear interpolation of each row of ``table`` (…, J) at distances r [m]; 0 beyond."""
-    u = np.asarray(r, dtype=np.float64) / step
-    j = np.minimum(u.astype(np.int64), table.shape[-1] - 2)
-    w = u - j
-    out = table[..., j] * (1.0 - w) + table[..., j + 1] * w
-    return np.where(u <= table.shape[-1] - 1, out, 0.0)
 
 
 def round_tables(
@@ -213,8 +205,15 @@ class RoundFit:
 
 def _lattice(center: NDArray, half: float, step: float) -> NDArray[np.float64]:
     """(L, 2) centres on a square lattice of ``step`` within ``half`` of ``center`` [m]."""
+    return center + _lattice_offsets(half, step)
+
+
+@functools.lru_cache(maxsize=16)
+def _lattice_offsets(half: float, step: float) -> NDArray[np.float64]:
     g = np.arange(-half, half + 1e-12, step)
-    return center + np.stack(np.meshgrid(g, g, indexing="ij"), axis=-1).reshape(-1, 2)
+    out = np.stack(np.meshgrid(g, g, indexing="ij"), axis=-1).reshape(-1, 2)
+    out.flags.writeable = False
+    return out
 
 
 def fit_round_contact(
@@ -252,28 +251,21 @@ def fit_round_contact(
     w = np.ones(len(d)) if sigma is None else np.broadcast_to(np.asarray(sigma, float), d.shape)
     w2 = 1.0 / np.square(w[local])
     t0, dt = tables.log_grid
-    best = (math.inf, 0.0, 0.0, 0.0, 0.0, -1)
-    # Each start on its own: one lattice over all of them would start every radius from the
-    # single best lattice centre, and a ring-read punch's coarse best can be the wrong start.
-    for c in c0:
-        got = fit_one(
-            tables.table,
-            t0,
-            dt,
-            tables.step,
-            np.ascontiguousarray(xy[local]),
-            np.ascontiguousarray(d[local]),
-            np.ascontiguousarray(w2),
-            _lattice(c, search, 5e-4),
-            _spread(len(tables.radii), FIT_CENTRE_RADII),
-            _spread(len(tables.radii), FIT_START_RADII),
-            FIT_PRE_ITERATIONS,
-            FIT_KEEP,
-            FIT_ITERATIONS if polish else FIT_PRE_ITERATIONS * 2,
-        )
-        if got[4] > 0 and got[0] < best[0]:
-            best = got
-    _cost, x, y, t, force, fam = best
+    _cost, x, y, t, force, fam = fit_one(
+        tables.table,
+        t0,
+        dt,
+        tables.step,
+        np.ascontiguousarray(xy[local]),
+        np.ascontiguousarray(d[local]),
+        np.ascontiguousarray(w2),
+        np.stack([_lattice(c, search, 5e-4) for c in c0]),
+        _spread(len(tables.radii), FIT_CENTRE_RADII),
+        _spread(len(tables.radii), FIT_START_RADII),
+        FIT_PRE_ITERATIONS,
+        FIT_KEEP,
+        FIT_ITERATIONS if polish else FIT_PRE_ITERATIONS * 2,
+    )
     if not force > 0:
         return None
     fit = RoundFit(float(force), (float(x), float(y)), int(fam), float(math.exp(t)), 0.0)
@@ -288,9 +280,12 @@ FIT_START_RADII = 22
 FIT_CENTRE_RADII = 8
 
 
+@functools.lru_cache(maxsize=16)
 def _spread(n: int, k: int) -> NDArray[np.int64]:
-    """Up to k indices spread evenly over 0 … n − 1, both ends included."""
-    return np.unique(np.linspace(0, n - 1, min(k, n)).round()).astype(np.int64)
+    """Up to k indices spread evenly over 0 … n − 1, both ends included (read-only)."""
+    out = np.unique(np.linspace(0, n - 1, min(k, n)).round()).astype(np.int64)
+    out.flags.writeable = False
+    return out
 
 
 #: Levenberg–Marquardt iterations from each start, then for the FIT_KEEP best to convergence.
