@@ -70,16 +70,22 @@ class ContactFitter:
         single = fit_round_contact(self.tables, xy, d, start, sigma=self.sigma)
         fits = [single] if single is not None else []
         residual = single.residual if single is not None else math.inf
-        seeds = [xy[i] for i in self.seeds(xy, d)]
+        # Separate contacts must lower the squared residual by the evidence margin: a single
+        # contact already within it leaves nothing to win (and skips 4-5 more fits).
+        margin = MULTI_CONTACT_EVIDENCE * self.count_sigma**2
+        seeds = [xy[i] for i in self.seeds(xy, d)] if residual**2 > margin else []
         if len(seeds) > 1:
             # Model choice on least-squares points (their residuals are those of the
             # predictions subtracted); the posterior then reports each contact.
             points = self.least_squares(seeds, xy, d)
             if len(points) > 1 and apart(points, CONTACT_SEPARATION):
-                one = fit_round_contact(self.tables, xy, d, start, polish=False)
-                r_one = min(one.residual if one is not None else math.inf, residual)
                 r_multi = float(np.linalg.norm(d - self.predicted(points, xy)))
-                if r_one**2 - r_multi**2 > MULTI_CONTACT_EVIDENCE * self.count_sigma**2:
+                r_one = residual
+                if r_one**2 - r_multi**2 > margin:
+                    # The unweighted single fit may explain more than the weighted one.
+                    one = fit_round_contact(self.tables, xy, d, start, polish=False)
+                    r_one = min(one.residual if one is not None else math.inf, residual)
+                if r_one**2 - r_multi**2 > margin:
                     fits, residual = [], r_multi
                     for k, f in enumerate(points):
                         rest = d - self.predicted(points, xy, skip=k)
