@@ -20,6 +20,7 @@ status flags whose values match ``tactile_contact/msg/TaxelArray`` (plus STATUS_
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -211,7 +212,18 @@ class BaselineTracker:
         if cfg.module_freeze:
             nbr |= mi[:, None] == mi[None, :]
         self._nbr = nbr.astype(np.float64)
+        self._nbr_cols = np.ascontiguousarray(self._nbr.T)  # column j as a contiguous row
         self._recent: deque[NDArray[np.float64]] = deque(maxlen=cfg.tare_window)
+        # Per-call constants: update() runs at 50 Hz per patch on a driver serving dozens of
+        # patches, where a numpy call on 72 elements costs about as much as its arithmetic.
+        self._all = np.ones(n, dtype=bool)
+        self._none = np.zeros(n, dtype=bool)
+        self._all.flags.writeable = self._none.flags.writeable = False
+        self._all_valid = bool(self.valid.all())
+        self._disabled = np.where(self.valid, 0, STATUS_DISABLED).astype(np.uint8)
+        self._disabled_contact = self._disabled | np.uint8(STATUS_CONTACT)
+        self._exp_arg = np.empty(2)
+        self._t_max = -math.inf  # latest timestamp so far [s]
         self.recalibrate()
 
     @classmethod
@@ -247,7 +259,15 @@ class BaselineTracker:
         back after a silence, possibly rebooted with another offset); default all.
         """
         n = self.n
+        # Shortcut flags of update(), each only ever True when what it claims holds:
+        # _all_cal every channel calibrated; _last_t_all the value of every _last_t (NaN
+        # included) or None; _ref_nan _onset_ref may hold NaN; _blank_end >= every _blank_until;
+        # _zero_any / _cal_zero_any _zero_s / _cal_zero may be non-zero.
+        self._all_cal = False
+        self._ref_nan = True
         if channels is None:
+            self._last_t_all: float | None = math.nan
+            self._zero_any = self._cal_zero_any = False
             self.baseline = np.zeros(n)
             self._cal_sum = np.zeros(n)
             self._cal_count = np.zeros(n, dtype=np.int64)
@@ -261,6 +281,7 @@ class BaselineTracker:
             self._recent.clear()
             return
         m = self._mask("channels", channels, False)
+        self._last_t_all = None
         self.baseline[m] = 0.0
         self._cal_sum[m] = 0.0
         self._cal_count[m] = 0
@@ -273,8 +294,13 @@ class BaselineTracker:
         self._onset_ref[m] = np.nan
 
     def _clear_dynamics(self, m: NDArray[np.bool_] | None = None) -> None:
+        # _hard_key: hard.tobytes() of the cached _frozen; _fs_ok: _frozen_since and _fs_min
+        # are up to date for that _frozen.
+        self._hard_key = b""
+        self._fs_ok = False
         if m is None:
             n = self.n
+            self._blank_end = -math.inf
             self.contact = np.zeros(n, dtype=bool)
             self.hard = np.zeros(n, dtype=bool)
             self._blank_until = np.full(n, -np.inf)
@@ -301,6 +327,7 @@ class BaselineTracker:
         mean = np.mean(np.stack(self._recent), axis=0)
         self.baseline = mean
         self._onset_ref = mean.copy()
+        self._ref_nan = True
         done = self._cal_count < self.config.calibration_samples
         self._cal_count[done] = self.config.calibration_samples
         self._clear_dynamics()
@@ -336,119 +363,262 @@ class BaselineTracker:
             out_of_range: (N,) the module's out-of-range bits.
             module_error: (N,) the module reported an I²C / connection error.
         """
-        v = np.asarray(raw)
-        if v.shape != (self.n,):
-            raise ValueError(f"raw must have shape ({self.n},), got {v.shape}")
-        v = v.astype(np.float64)
-        if not np.all(np.isfinite(v)) or np.any((v < 0) | (v > 255)):
+        n = self.n
+        r = np.asarray(raw)
+        if r.shape != (n,):
+            raise ValueError(f"raw must have shape ({n},), got {r.shape}")
+        v = r.astype(np.float64)
+        # uint8 (what the codec delivers) cannot be out of range: skip the check.
+        if r.dtype != np.uint8 and (not np.all(np.isfinite(v)) or np.any((v < 0) | (v > 255))):
             raise ValueError(f"raw values must be within 0..255, got range {v.min()}..{v.max()}")
-        if not np.isfinite(timestamp):
+        if not (math.isfinite(timestamp) if type(timestamp) is float else np.isfinite(timestamp)):
             raise ValueError(f"timestamp must be finite, got {timestamp!r}")
         cfg = self.config
-        fr = self._mask("fresh", fresh, True)
-        oor = self._mask("out_of_range", out_of_range, False)
-        err = self._mask("module_error", module_error, False)
         t = float(timestamp)
+        # Masks that are all True or all False are common (every module fresh, no module
+        # error, nothing out of range); the flags below skip the operations they make no-ops.
+        if fresh is None:
+            fr, all_fresh = self._all, True
+        else:
+            fr = self._mask("fresh", fresh, True)
+            all_fresh = np.count_nonzero(fr) == n
+        if out_of_range is None:
+            oor, any_oor = self._none, False
+        else:
+            oor = self._mask("out_of_range", out_of_range, False)
+            any_oor = np.count_nonzero(oor) > 0
+        if module_error is None:
+            err, any_err = self._none, False
+        else:
+            err = self._mask("module_error", module_error, False)
+            any_err = np.count_nonzero(err) > 0
+        all_valid = self._all_valid
 
-        dt = np.where(np.isnan(self._last_t), 0.0, t - self._last_t)
-        dt = np.clip(dt, 0.0, _MAX_DT_S)
-        dt[~fr] = 0.0
-        self._last_t[fr] = t
-        self._recent.append(v.copy())
+        # dt [s] per channel, or one scalar when every channel shares it (the usual case).
+        dt: float | NDArray[np.float64]
+        lt = self._last_t_all
+        if all_fresh and lt is not None:
+            dt = 0.0 if math.isnan(lt) else min(max(t - lt, 0.0), _MAX_DT_S)
+            # The same numpy expm1 as per channel, on the shared value: identical gains.
+            x = self._exp_arg
+            x[0] = -dt / cfg.onset_time_constant_s
+            x[1] = -dt / cfg.drift_time_constant_s
+            e_on, e_drift = np.expm1(x)
+            a_on, alpha = -e_on, -e_drift
+        else:
+            dt = np.fmin(np.fmax(t - self._last_t, 0.0), _MAX_DT_S)  # fmax: NaN (never) → 0
+            if not all_fresh:
+                dt[~fr] = 0.0
+            a_on = -np.expm1(-dt / cfg.onset_time_constant_s)
+            alpha = -np.expm1(-dt / cfg.drift_time_constant_s)
+        if all_fresh:
+            self._last_t.fill(t)
+            self._last_t_all = t
+        else:
+            self._last_t[fr] = t
+            self._last_t_all = None
+        self._recent.append(v)  # v is never written to
 
-        sat = (v <= 0) | (v >= 255)
-        usable = fr & self.valid & ~sat & ~oor & ~err
+        if r.dtype == np.uint8:  # a byte search costs far less than two comparisons and an or
+            rb = r.tobytes()
+            any_sat = b"\x00" in rb or b"\xff" in rb
+        else:
+            any_sat = True
+        if any_sat:
+            zero = v == 0
+            sat = (v <= 0) | (v >= 255)
+            any_sat = np.count_nonzero(sat) > 0
+        else:
+            zero = sat = self._none
 
         # Calibration: plain mean of the first samples of every channel.
-        cal_before = self.calibrated_mask
-        learn = fr & ~cal_before & ~err
-        self._cal_sum[learn] += v[learn]
-        self._cal_count[learn] += 1
-        self._cal_zero[learn] |= v[learn] == 0
-        just = learn & self.calibrated_mask
-        self.baseline[just] = self._cal_sum[just] / self._cal_count[just]
-        cal = self.calibrated_mask
-
-        dev = np.where(cal, self.baseline - v, 0.0)
+        if self._all_cal:
+            cal, just = self._all, None
+            dev = self.baseline - v
+        else:
+            cal_before = self.calibrated_mask
+            learn = fr & ~cal_before & ~err
+            self._cal_sum[learn] += v[learn]
+            self._cal_count[learn] += 1
+            self._cal_zero[learn] |= v[learn] == 0
+            self._cal_zero_any = np.count_nonzero(self._cal_zero) > 0
+            just = learn & self.calibrated_mask
+            self.baseline[just] = self._cal_sum[just] / self._cal_count[just]
+            cal = self.calibrated_mask
+            self._all_cal = bool(np.count_nonzero(cal) == n)
+            dev = np.where(cal, self.baseline - v, 0.0)
         mag = np.abs(dev)
-        active = cal & self.valid & fr
+        every_active = self._all_cal and all_fresh and all_valid
+        active = None if every_active else cal & self.valid & fr
         # Level hysteresis with a release delay.
-        on = active & (mag >= cfg.contact_on_counts)
-        self._peak = np.where(self.contact | on, np.maximum(self._peak, mag), 0.0)
-        level = np.maximum(cfg.contact_off_counts, cfg.release_fraction * self._peak)
-        quiet = active & (mag < level)
-        self._quiet_since[quiet & np.isinf(self._quiet_since)] = t
-        self._quiet_since[active & ~quiet] = np.inf
-        released = self.contact & quiet & (t - self._quiet_since >= cfg.release_s)
-        self.contact = (self.contact | on) & ~released & self.valid
-        self._peak[released] = 0.0
+        on = mag >= cfg.contact_on_counts
+        if active is not None:
+            on &= active
+        contact = self.contact
+        had_contact = np.count_nonzero(contact) > 0
+        co = contact | on if had_contact else on
+        if np.count_nonzero(co):
+            peak = np.maximum(self._peak, mag)
+            peak *= co  # peak >= 0 is finite: the same as np.where(co, peak, 0.0)
+            quiet = mag < np.maximum(cfg.contact_off_counts, cfg.release_fraction * peak)
+        else:
+            peak = np.zeros(n)
+            quiet = mag < max(cfg.contact_off_counts, 0.0)
+        if active is not None:
+            quiet &= active
+        # The "since" times hold past timestamps or inf: while time runs forward, "t where inf"
+        # is a minimum.
+        monotonic = t >= self._t_max
+        self._t_max = max(self._t_max, t)
+        if monotonic and active is None:
+            self._quiet_since = qs = np.where(quiet, np.minimum(self._quiet_since, t), np.inf)
+        else:
+            qs = self._quiet_since
+            qs[quiet & np.isinf(qs)] = t
+            qs[~quiet if active is None else active & ~quiet] = np.inf
+        if had_contact:
+            # With every channel active, qs is inf where not quiet: t - inf never releases.
+            released = contact & (t - qs >= cfg.release_s)
+            if active is not None:
+                released &= quiet
+            if np.count_nonzero(released):
+                co &= ~released
+                peak[released] = 0.0
+        if not all_valid:
+            co &= self.valid
+        self.contact = contact = co
+        self._peak = peak
         # Only a contact that appeared quickly (a step of contact_on_counts against the onset
         # filter) freezes baselines: drift that built up unseen on a frozen taxel also crosses
         # the level threshold, and must not keep the region frozen for ever.
-        ref = np.where(np.isnan(self._onset_ref), v, self._onset_ref)
-        # The step must move away from the baseline: lifting an object is a fast step too.
-        step = active & (np.abs(v - ref) >= cfg.contact_on_counts) & ((ref - v) * dev > 0)
-        # Around a fast contact that is being lifted, the layer relaxing (and drift that built
-        # up during the hold) steps the neighbours too. Until the onset filter has settled,
-        # a step there must reach half the lifted contact's peak to count (a sliding contact
-        # moving on does; a relaxing bulge does not).
-        peak_rel = np.where(self.hard & quiet, self._peak, 0.0)
-        if np.any(peak_rel > 0):
-            lvl = np.max(self._nbr * peak_rel[None, :], axis=1) * 0.5
-            renew = lvl > 0
-            self._blank_level[renew] = np.maximum(
-                np.where(t < self._blank_until[renew], self._blank_level[renew], 0.0),
-                lvl[renew],
-            )
-            self._blank_until[renew] = t + 2.0 * cfg.onset_time_constant_s
-        blanked = t < self._blank_until
-        step &= ~blanked | (np.abs(v - ref) >= self._blank_level)
-        self.hard = self.contact & (self.hard | step)
-        a_on = -np.expm1(-dt / cfg.onset_time_constant_s)
-        upd = fr & ~err
-        self._onset_ref[upd] = ref[upd] + a_on[upd] * (v[upd] - ref[upd])
+        if self._ref_nan:
+            ref = np.where(np.isnan(self._onset_ref), v, self._onset_ref)
+        else:
+            ref = self._onset_ref
+        d = v - ref
+        if np.count_nonzero(contact):
+            # Around a fast contact that is being lifted, the layer relaxing (and drift that
+            # built up during the hold) steps the neighbours too. Until the onset filter has
+            # settled, a step there must reach half the lifted contact's peak to count (a
+            # sliding contact moving on does; a relaxing bulge does not).
+            hq = self.hard & quiet
+            if np.count_nonzero(hq):
+                # max_j nbr[i, j]·peak_rel[j] over the few j of nonzero peak (the rest are 0).
+                lifted = np.flatnonzero(peak * hq)
+                if len(lifted):
+                    p = peak[lifted]
+                    lvl = (self._nbr_cols[lifted] * p[:, None]).max(axis=0) * 0.5
+                    renew = lvl > 0
+                    bl, bu = self._blank_level, self._blank_until
+                    np.copyto(bl, np.maximum(np.where(t < bu, bl, 0.0), lvl), where=renew)
+                    until = t + 2.0 * cfg.onset_time_constant_s
+                    np.copyto(bu, until, where=renew)
+                    self._blank_end = max(self._blank_end, until)
+            # The step must move away from the baseline (ref − v and the deviation of one
+            # sign): lifting an object is a fast step too. A blanked step must also reach
+            # the blanking level.
+            on_c = cfg.contact_on_counts
+            if t < self._blank_end:  # else nothing is blanked
+                on_c = np.where(t < self._blank_until, np.maximum(self._blank_level, on_c), on_c)
+            step = (np.abs(d) >= on_c) & (d * dev < 0)
+            if active is not None:
+                step &= active
+            self.hard = hard = contact & (self.hard | step)
+        else:
+            # A lifted contact had released every hard taxel (hard is within contact), so
+            # their peaks are 0 and no neighbour blanking is renewed either.
+            self.hard = hard = np.zeros(n, dtype=bool)
+        upd_all = all_fresh and not any_err
+        if upd_all:
+            self._onset_ref = ref + a_on * d
+            self._ref_nan = False
+        else:
+            upd = fr & ~err
+            self._onset_ref[upd] = (ref + a_on * d)[upd]
 
-        frozen = (self._nbr @ self.hard.astype(np.float64)) > 0.0
-        self._frozen_since[frozen & np.isinf(self._frozen_since)] = t
-        self._frozen_since[~frozen] = np.inf
-        hold = frozen
-        if cfg.max_freeze_s is not None:
-            hold = frozen & (t - self._frozen_since <= cfg.max_freeze_s)
-        track = usable & cal & ~hold & ~just
-        alpha = -np.expm1(-dt / cfg.drift_time_constant_s)
-        self.baseline[track] += alpha[track] * (v[track] - self.baseline[track])
+        # frozen depends on hard alone, which changes a few times per contact.
+        key = hard.tobytes()
+        if key != self._hard_key:
+            self._hard_key = key
+            self._frozen = (self._nbr @ hard.astype(np.float64)) > 0.0
+            self._any_frozen = np.count_nonzero(self._frozen) > 0
+            self._fs_ok = False
+        frozen = self._frozen
+        if not (self._fs_ok and monotonic):  # else every frozen_since stays as it is
+            fs = self._frozen_since
+            fs[frozen & np.isinf(fs)] = t
+            fs[~frozen] = np.inf
+            self._fs_min = fs.min()
+            self._fs_ok = True
+        hold = None
+        if self._any_frozen:
+            hold = frozen
+            # The oldest freeze within max_freeze_s: all are (rounding of t − x is monotonic).
+            mf = cfg.max_freeze_s
+            if mf is not None and not t - self._fs_min <= mf:
+                hold = frozen & (t - self._frozen_since <= mf)
+        b = self.baseline
+        track = None  # all
+        if not (upd_all and all_valid and not any_sat and not any_oor and just is None):
+            track = fr & self.valid & ~sat & ~oor & ~err & cal
+            if just is not None:
+                track &= ~just
+        if hold is not None:
+            track = ~hold if track is None else track & ~hold
+        if track is None:
+            b += alpha * (v - b)
+        else:
+            np.add(b, alpha * (v - b), out=b, where=track)
 
         # Fault timers count time of fresh readings only, so a silent module is stale, not stuck.
-        same = fr & (v == self._last_value)
-        self._unchanged_s[same] += dt[same]
-        self._unchanged_s[fr & ~same] = 0.0
-        self._last_value[fr] = v[fr].astype(np.int64)
-        zero = fr & (v == 0)
-        self._zero_s[zero] += dt[zero]
-        self._zero_s[fr & ~zero] = 0.0
+        same = v == self._last_value
+        if all_fresh:
+            self._unchanged_s = (self._unchanged_s + dt) * same  # >= 0: where(same, ..., 0)
+            self._last_value = v.astype(np.int64)
+        else:
+            same &= fr
+            self._unchanged_s[same] += dt[same]
+            self._unchanged_s[fr & ~same] = 0.0
+            self._last_value[fr] = v[fr].astype(np.int64)
+        if self._zero_any or np.count_nonzero(zero):
+            zero = fr & zero
+            self._zero_s[zero] += dt[zero] if isinstance(dt, np.ndarray) else dt
+            self._zero_s[fr & ~zero] = 0.0
+            self._zero_any = np.count_nonzero(self._zero_s) > 0
+            dead = err | (self._zero_s > cfg.dead_timeout_s)
+        else:
+            dead = err
 
-        status = np.zeros(self.n, dtype=np.uint8)
-        status[~self.valid] |= STATUS_DISABLED
+        # Flags other than disabled and contact are rare: set only those present.
+        status = np.where(contact, self._disabled_contact, self._disabled)
         if cfg.stuck_timeout_s is not None:
-            status[self.valid & (self._unchanged_s > cfg.stuck_timeout_s)] |= STATUS_STUCK
-        dead = err | (self._zero_s > cfg.dead_timeout_s) | (cal & self._cal_zero)
-        status[dead] |= STATUS_DEAD
-        status[sat] |= STATUS_SATURATED
-        status[oor] |= STATUS_OUT_OF_RANGE
-        status[~fr] |= STATUS_STALE
-        status[self.contact] |= STATUS_CONTACT
-        status[~cal] |= STATUS_UNCALIBRATED
+            stuck = self._unchanged_s > cfg.stuck_timeout_s
+            if np.count_nonzero(stuck):
+                status[stuck & self.valid] |= STATUS_STUCK
+        if self._cal_zero_any:
+            dead = dead | (cal & self._cal_zero)
+        if dead is not err or any_err:
+            status[dead] |= STATUS_DEAD
+        if any_sat:
+            status[sat] |= STATUS_SATURATED
+        if any_oor:
+            status[oor] |= STATUS_OUT_OF_RANGE
+        if not all_fresh:
+            status[~fr] |= STATUS_STALE
+        if not self._all_cal:
+            status[~cal] |= STATUS_UNCALIBRATED
 
-        out = cal & self.valid
-        delta_c = np.where(out, dev * self._gain, 0.0)
+        delta_c = dev * self._gain
+        if not (self._all_cal and all_valid):
+            delta_c = np.where(cal & self.valid, delta_c, 0.0)
         self._last_status = status
         return BaselineResult(
             delta_c=delta_c,
             deviation=dev,
             status=status,
-            contact=self.contact.copy(),
-            frozen=frozen,
-            calibrated=bool(np.all(cal[self.valid])),
+            contact=contact.copy(),
+            frozen=frozen.copy(),
+            calibrated=self._all_cal or bool(np.all(cal[self.valid])),
         )
 
     # -- diagnostics ----------------------------------------------------------------------

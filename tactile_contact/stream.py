@@ -201,6 +201,7 @@ class _PatchState:
     oor: NDArray[np.bool_]
     err: NDArray[np.bool_]
     seen: NDArray[np.bool_]
+    all_seen: bool = False  # every module heard at least once (seen all True)
     n_fresh: int = 0
     n_live: int = 0
     live_checked: float = -math.inf  # monotonic [s]
@@ -449,23 +450,35 @@ class SkinStream:
         return [self._emit(st) for st in self._patches if now - st.first_pending >= self.max_wait_s]
 
     def _emit(self, st: _PatchState) -> PatchFrame:
-        fresh = np.repeat([m.fresh for m in st.modules], CHANNELS_PER_MODULE)
+        # Runs for every patch reading: the masks that are usually all True or all False are
+        # passed as None (the tracker's defaults) and the rare cases are tested in Python.
+        flags = [m.fresh for m in st.modules]
+        all_fresh = all(flags)
+        fresh = None if all_fresh else np.repeat(flags, CHANNELS_PER_MODULE)
         res = st.tracker.update(
-            st.raw, st.newest_stamp, fresh=fresh, out_of_range=st.oor, module_error=st.err
+            st.raw,
+            st.newest_stamp,
+            fresh=fresh,
+            out_of_range=st.oor if np.count_nonzero(st.oor) else None,
+            module_error=st.err if np.count_nonzero(st.err) else None,
         )
-        status = res.status.copy()
-        status[~st.seen] &= np.uint8(~bl.STATUS_SATURATED & 0xFF)  # never heard: no value at all
+        status = res.status
+        if not st.all_seen:
+            st.all_seen = np.count_nonzero(st.seen) == len(st.seen)
+            status = status.copy()
+            status[~st.seen] &= np.uint8(~bl.STATUS_SATURATED & 0xFF)  # never heard: no value
         delta_c = res.delta_c
         silent = [m.silent for m in st.modules]
         if any(silent):  # no reading for longer than the timeout: nothing to use
             gone = np.repeat(silent, CHANNELS_PER_MODULE)
+            status = status.copy()
             status[gone] |= np.uint8(bl.STATUS_STALE | bl.STATUS_DEAD)
             delta_c = np.where(gone, 0.0, delta_c)
-        for m, cal in zip(
-            st.modules, st.tracker.calibrated_mask.reshape(-1, CHANNELS_PER_MODULE), strict=True
-        ):
-            if m.rebaselining and cal.all():
-                m.rebaselining = False
+        if any(m.rebaselining for m in st.modules):
+            cal_mask = st.tracker.calibrated_mask.reshape(-1, CHANNELS_PER_MODULE)
+            for m, cal in zip(st.modules, cal_mask, strict=True):
+                if m.rebaselining and cal.all():
+                    m.rebaselining = False
         for m in st.modules:
             m.fresh = False
         st.n_fresh = 0
@@ -473,7 +486,7 @@ class SkinStream:
         st.oldest_pending_stamp = math.inf
         stamp, st.newest_stamp = st.newest_stamp, -math.inf  # per message: a clock step heals
         st.published += 1
-        if not fresh.all():
+        if not all_fresh:
             st.stale_publications += 1
         return PatchFrame(
             patch=st.layout.name,
