@@ -46,7 +46,6 @@ from tactile_contact.bundle import Bundle, load_bundle
 from tactile_contact.grids import Grid, distance_to_points
 from tactile_contact.sensor import (
     EPSILON_0,
-    delta_c_in_range,
     delta_c_to_compression,
     value_count_farad,
 )
@@ -167,6 +166,10 @@ class Reconstructor:
             * float(p["area"])
             / (float(p["thickness"]) * self._lsb)
         )
+        # δ = ΔC·h²/(ε0·εr·A + ΔC·h) (sensor.delta_c_to_compression) per frame without its
+        # argument checks: the frame's own range mask keeps the denominator positive.
+        self._eps_area = EPSILON_0 * float(p["epsilon_r"]) * float(p["area"])
+        self._rest_c = self._eps_area / self._thickness
         self._count_sigma = float(self.compression(np.array([lsb]))[0]) / math.sqrt(6.0)
         # The largest |ΔC| [F] a reading can carry: the 8-bit value's whole range.
         self.full_scale: float = 256.0 * lsb
@@ -187,7 +190,7 @@ class Reconstructor:
                 np.asarray(bundle["round_point_table"], dtype=np.float64),
             )
         self._dg_centers = self.deflection_grid.centers()
-        self._noise_cache: tuple[float, NDArray[np.float64]] | None = None
+        self._noise_cache: tuple[Any, NDArray[np.float64]] | None = None
         #: Per-taxel compression noise [m] the detector and the fit assume unless a frame
         #: passes its own: the layout's sensor model (the reading's rounding, one count/√6).
         self.default_noise = np.full(self.n_taxels, self._count_sigma)
@@ -224,9 +227,17 @@ class Reconstructor:
             if self._noise_cache is None or self._noise_cache[0] != noise:
                 self._noise_cache = (noise, np.full(self.n_taxels, noise))
             return self._noise_cache[1]
+        # The same array as last frame (a tracker replaces its array when it learns) was
+        # checked then; its values are compared, not trusted, in case it was edited since.
+        cached = self._noise_cache
+        if cached is not None and noise is cached[0] and (noise == cached[1]).all():
+            return cached[1]
         s = np.broadcast_to(np.asarray(noise, dtype=np.float64), (self.n_taxels,))
         if not np.all(np.isfinite(s) & (s > 0)):
             raise ValueError(f"noise must be finite and > 0 m, shape () or ({self.n_taxels},)")
+        if isinstance(noise, np.ndarray):
+            self._noise_cache = (noise, s.copy())
+            return self._noise_cache[1]
         return s
 
     @classmethod
@@ -248,9 +259,16 @@ class Reconstructor:
     def _on_count_lattice(self, delta: NDArray, ok: NDArray) -> bool:
         """True when the compressions [m] are whole 8-bit counts through the sensor model
         (to 1 % of a count) and at least one is not zero."""
-        d = delta[ok]
         # ΔC = ε0·εr·A·δ / (h·(h − δ)) (sensor.compression_to_delta_c), in counts.
-        counts = self._counts_per_metre_h * d / (self._thickness - d)
+        c, h = self._counts_per_metre_h, self._thickness
+        # The largest reading first: off the lattice there (as float readings almost surely
+        # are), the whole frame is, without converting every taxel.
+        i = int(np.argmax(np.abs(delta)))
+        one = c * float(delta[i]) / (h - float(delta[i]))
+        if ok[i] and abs(one - round(one)) >= 0.01:
+            return False
+        d = delta[ok]
+        counts = c * d / (h - d)
         frac = np.abs(counts - np.rint(counts))
         return bool(np.any(np.abs(counts) > 0.5) and frac.max(initial=1.0) < 0.01)
 
@@ -261,10 +279,12 @@ class Reconstructor:
                 f"{name} must have shape ({self.n_taxels},) in the bundle's taxel "
                 f"order, got {v.shape}"
             )
-        ok = np.ones(self.n_taxels, bool) if valid is None else np.asarray(valid, dtype=bool)
-        if ok.shape != (self.n_taxels,):
-            raise ValueError(f"valid must have shape ({self.n_taxels},), got {ok.shape}")
-        ok = ok & np.isfinite(v)
+        ok = np.isfinite(v)
+        if valid is not None:
+            mask = np.asarray(valid, dtype=bool)
+            if mask.shape != (self.n_taxels,):
+                raise ValueError(f"valid must have shape ({self.n_taxels},), got {mask.shape}")
+            ok &= mask
         return (v if ok.all() else np.where(ok, v, 0.0)), ok
 
     def solve(
@@ -287,12 +307,12 @@ class Reconstructor:
         layout's sensor model (``default_noise``).
         """
         dc, ok = self._check(delta_c, "delta_c", valid)
-        p = self.params
-        ok &= delta_c_in_range(dc, p["thickness"], p["epsilon_r"], p["area"])
-        ok &= np.abs(dc) <= self.full_scale
-        delta = np.where(ok, self.compression(np.where(ok, dc, 0.0)), 0.0)
-        res = self._solve(delta, ok, want_traction, want_deflection, self._noise(noise), False)
-        return res
+        ok &= (dc > -self._rest_c) & (np.abs(dc) <= self.full_scale)  # (NaN fails both)
+        if not ok.all():
+            dc = np.where(ok, dc, 0.0)
+        h = self._thickness
+        delta = dc * (h * h) / (self._eps_area + dc * h)
+        return self._solve(delta, ok, want_traction, want_deflection, self._noise(noise), False)
 
     def solve_deflection(
         self,
@@ -312,7 +332,8 @@ class Reconstructor:
         d, ok = self._check(delta, "delta", valid)
         ok &= d < self._thickness
         sigma = self._noise(noise)
-        d = np.where(ok, d, 0.0)
+        if not ok.all():
+            d = np.where(ok, d, 0.0)
         # Without a noise level: readings on the 8-bit count lattice are treated as counts
         # (posterior over the quantisation valley); others as precise, of unknown noise
         # (scale-free detection, least-squares contact).
@@ -354,7 +375,8 @@ class Reconstructor:
         quantised: bool = True,
     ) -> ContactResult:
         used = int(np.count_nonzero(ok))
-        active = int(np.count_nonzero(ok & (np.abs(delta) > self.contact_threshold)))
+        # (Excluded taxels read 0 here.)
+        active = int(np.count_nonzero(np.abs(delta) > self.contact_threshold))
         start = None
         if self.detector is not None:
             if sigma is not self._sigma_seen:

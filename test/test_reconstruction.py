@@ -261,6 +261,21 @@ def test_pinv_path_is_the_precomputed_product(point_pinv, indentation):
     assert abs(res.total_force) < 0.5 * 1.5
 
 
+def test_a_noise_array_edited_in_place_is_read_again(default, indentation):
+    # The reconstructor remembers the last noise array it checked (the node passes the same
+    # tracker array every frame); editing that array in place must still count.
+    r, _ = default
+    delta, _ = indentation
+    weak = 0.2 * delta  # 0.3 N: detected at the sensor model's noise
+    sigma = r.default_noise.copy()
+    assert r.solve_deflection(weak, noise=sigma).in_contact
+    sigma *= 100.0  # the same array, now a hundred times noisier: the press is noise
+    assert not r.solve_deflection(weak, noise=sigma).in_contact
+    sigma[3] = np.nan
+    with pytest.raises(ValueError, match="noise must be finite"):
+        r.solve_deflection(weak, noise=sigma)
+
+
 def test_shape_errors(default):
     r, _ = default
     with pytest.raises(ValueError, match=r"delta_c must have shape \(72,\)"):
