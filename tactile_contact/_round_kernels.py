@@ -192,20 +192,63 @@ def lm_fit(table, f, t0, dt, step, xy, d, w2, x, y, t, iterations):  # pragma: n
 
 
 @numba.njit(**_JIT)
+def _lattice_costs(table, t0, dt, step, xy, d, w2, centres, radius_index):  # pragma: no cover
+    """(costs (F, R, L), forces (F, R, L)) as :func:`coarse`. Each centre's distances to the
+    taxels are shared by every family and radius, so they are found once per centre."""
+    n_f = table.shape[0]
+    n_k = xy.shape[0]
+    n_j = table.shape[2]
+    cost = np.empty((n_f, radius_index.shape[0], centres.shape[0]))
+    force = np.empty_like(cost)
+    rows = np.empty(radius_index.shape[0], np.int64)
+    weights = np.empty(radius_index.shape[0])
+    for m in range(radius_index.shape[0]):
+        rows[m], weights[m] = _row(table, t0, dt, t0 + dt * radius_index[m])
+    dd = 0.0
+    for i in range(n_k):
+        dd += w2[i] * d[i] * d[i]
+    j = np.empty(n_k, np.int64)
+    wr = np.empty(n_k)
+    for c in range(centres.shape[0]):
+        for i in range(n_k):
+            dx = centres[c, 0] - xy[i, 0]
+            dy = centres[c, 1] - xy[i, 1]
+            v = math.sqrt(dx * dx + dy * dy) / step
+            if v > n_j - 1:
+                j[i] = -1
+                wr[i] = 0.0
+            else:
+                j[i] = min(int(v), n_j - 2)
+                wr[i] = v - j[i]
+        for f in range(n_f):
+            for m in range(radius_index.shape[0]):
+                k = rows[m]
+                wa = weights[m]
+                num = 0.0
+                den = 0.0
+                for i in range(n_k):
+                    if j[i] < 0:
+                        continue
+                    a = j[i]
+                    lo = table[f, k, a] + wr[i] * (table[f, k, a + 1] - table[f, k, a])
+                    hi = table[f, k + 1, a] + wr[i] * (table[f, k + 1, a + 1] - table[f, k + 1, a])
+                    val = lo + wa * (hi - lo)
+                    num += w2[i] * val * d[i]
+                    den += w2[i] * val * val
+                if den <= 0.0 or num <= 0.0:
+                    cost[f, m, c] = dd
+                    force[f, m, c] = 0.0
+                else:
+                    force[f, m, c] = num / den
+                    cost[f, m, c] = dd - num / den * num
+    return cost, force
+
+
+@numba.njit(**_JIT)
 def coarse(table, t0, dt, step, xy, d, w2, centres, radius_index):  # pragma: no cover
     """Weighted cost of every family × tabulated radius ``radius_index`` (R,) × centre (L, 2),
     force at its non-negative optimum: (costs (F, R, L), forces (F, R, L))."""
-    n_f = table.shape[0]
-    cost = np.empty((n_f, radius_index.shape[0], centres.shape[0]))
-    force = np.empty_like(cost)
-    for f in range(n_f):
-        for m in range(radius_index.shape[0]):
-            k, wa = _row(table, t0, dt, t0 + dt * radius_index[m])
-            for c in range(centres.shape[0]):
-                cost[f, m, c], force[f, m, c] = _cost_force(
-                    table, f, k, wa, step, xy, d, w2, centres[c, 0], centres[c, 1]
-                )
-    return cost, force
+    return _lattice_costs(table, t0, dt, step, xy, d, w2, centres, radius_index)
 
 
 @numba.njit(**_JIT)
@@ -243,18 +286,17 @@ def fit_one(  # pragma: no cover - compiled
     best = (np.inf, 0.0, 0.0, 0.0, 0.0, -1)
     for s in range(centres.shape[0]):
         n = 0
+        costs, forces = _lattice_costs(
+            table, t0, dt, step, xy, d, w2, centres[s], centre_radius_index
+        )
         for f in range(n_f):
             bc = np.inf
             bx = centres[s, 0, 0]
             by = centres[s, 0, 1]
             for m in range(centre_radius_index.shape[0]):
-                k, wa = _row(table, t0, dt, t0 + dt * centre_radius_index[m])
                 for c in range(centres.shape[1]):
-                    cx = centres[s, c, 0]
-                    cy = centres[s, c, 1]
-                    cost, force = _cost_force(table, f, k, wa, step, xy, d, w2, cx, cy)
-                    if force > 0.0 and cost < bc:
-                        bc, bx, by = cost, cx, cy
+                    if forces[f, m, c] > 0.0 and costs[f, m, c] < bc:
+                        bc, bx, by = costs[f, m, c], centres[s, c, 0], centres[s, c, 1]
             if not bc < np.inf:
                 continue
             for m in range(n_r):
