@@ -72,13 +72,25 @@ def test_replay_reproduces_the_recorded_summaries(ros_context: object, tmp_path:
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
     executor.add_node(probe)
+    # Both hops matched before the first frame goes out, or its summary is lost.
     assert spin_until(
-        executor, lambda: player.publishers["/hexagon/taxels"].get_subscription_count() > 0
+        executor,
+        lambda: (
+            player.publishers["/hexagon/taxels"].get_subscription_count() > 0
+            and node.pipelines["hexagon"].pub_contact.get_subscription_count() > 0
+        ),
     )
     thread = threading.Thread(target=player.play, daemon=True)
     thread.start()
     assert spin_until(executor, lambda: not thread.is_alive(), timeout_s=60.0)
-    spin_until(executor, lambda: len(got) >= len(recorded), timeout_s=3.0)
+    # On a busy machine the node is far behind when the player ends (39 of 140 frames taken at
+    # 3x), and the deep queue holds the rest: wait for a summary of every frame played, not
+    # for as many as were recorded (the live run skipped 11 frames the replay does summarise,
+    # so that count came 10 short), for as long as summaries keep coming.
+    seen = -1
+    while len(got) > seen and len(got) < player.published:
+        seen = len(got)
+        spin_until(executor, lambda: len(got) >= player.published, timeout_s=3.0)
     executor.shutdown()
     node.destroy_node()
     probe.destroy_node()
