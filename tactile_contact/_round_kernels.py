@@ -120,6 +120,19 @@ def responses(table, f, t0, dt, step, t, r):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
+def predict(table, f, t0, dt, step, xy, x, y, t, force):  # pragma: no cover - compiled
+    """(N,) compression [m] that force·R of family f at log radius t, centred at (x, y) [m],
+    makes at the points ``xy`` (N, 2) [m]."""
+    k, wa = _row(table, t0, dt, t)
+    out = np.empty(xy.shape[0])
+    for i in range(xy.shape[0]):
+        dx = x - xy[i, 0]
+        dy = y - xy[i, 1]
+        out[i] = force * _value(table, f, k, wa, step, math.sqrt(dx * dx + dy * dy))
+    return out
+
+
+@numba.njit(**_JIT)
 def lm_fit(table, f, t0, dt, step, xy, d, w2, x, y, t, iterations):  # pragma: no cover
     """Levenberg–Marquardt from (x, y, t): returns (cost, x, y, t, F).
 

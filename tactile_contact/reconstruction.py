@@ -29,7 +29,6 @@ solution only.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from collections import OrderedDict
@@ -49,7 +48,7 @@ from tactile_contact.sensor import (
     delta_c_to_compression,
     value_count_farad,
 )
-from tactile_contact.summary import Contact, summarize
+from tactile_contact.summary import Contact, ContactSummary, summarize
 
 
 @dataclass(frozen=True)
@@ -504,17 +503,21 @@ class Reconstructor:
             residual = float(np.linalg.norm(pred - delta[ok]))
         else:
             residual = float(np.linalg.norm((self.forward @ q - delta)[ok]))
-        s = summarize(
-            q,
-            self._centers,
-            self.traction_grid.cell_area,
-            float(self.params["rel_threshold"]),
-            float(self.params["min_pressure"]),
-        )
-        contacts = (Contact.of_field(s),) if s.in_contact else ()
-        if fit is not None:
+        min_pressure = float(self.params["min_pressure"])
+        if fit is None:
+            s = summarize(
+                q,
+                self._centers,
+                self.traction_grid.cell_area,
+                float(self.params["rel_threshold"]),
+                min_pressure,
+            )
+            contacts = (Contact.of_field(s),) if s.in_contact else ()
+        else:
             # The fit's own force, centre and disc, not their 2 mm-cell rendering (which
-            # loses the part of a contact beyond the skin mask and blurs a small disc).
+            # loses the part of a contact beyond the skin mask and blurs a small disc); of
+            # the rendering only the peak, and whether any cell clears min_pressure (as
+            # summarize would find it: a cell above the threshold exists iff the peak is).
             from tactile_contact.round_contact import FAMILIES
 
             contacts = tuple(
@@ -522,11 +525,13 @@ class Reconstructor:
             )
             force = sum(c.force for c in contacts)
             cop = sum(c.force * np.asarray(c.center) for c in contacts) / force
-            s = dataclasses.replace(
-                s,
-                total_force=force,
-                cop=(float(cop[0]), float(cop[1])),
-                contact_area=sum(math.pi * c.radius**2 for c in contacts),
+            peak = max(float(q.max(initial=0.0)), 0.0)
+            s = ContactSummary(
+                force,
+                (float(cop[0]), float(cop[1])),
+                sum(math.pi * c.radius**2 for c in contacts),
+                peak,
+                peak > min_pressure,
             )
         deflection = None
         if want_d:

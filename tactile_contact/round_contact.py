@@ -82,9 +82,14 @@ class RoundTables:
 
     def predict(self, fit: RoundFit, taxel_xy: ArrayLike) -> NDArray[np.float64]:
         """(K,) compression [m] that the contact ``fit`` makes at ``taxel_xy`` (K, 2) [m]."""
-        xy = np.asarray(taxel_xy, dtype=np.float64)
-        r = np.hypot(*(xy - np.asarray(fit.center)).T)
-        return fit.force * self.response(fit.family, math.log(fit.radius), r)
+        from tactile_contact._round_kernels import predict
+
+        xy = np.ascontiguousarray(taxel_xy, dtype=np.float64).reshape(-1, 2)
+        t0, dt = self.log_grid
+        x, y = fit.center
+        return predict(
+            self.table, fit.family, t0, dt, self.step, xy, x, y, math.log(fit.radius), fit.force
+        )
 
 
 def round_tables(
