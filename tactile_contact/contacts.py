@@ -103,14 +103,15 @@ class ContactFitter:
         strongest = int(np.argmax(d))
         out = [] if cop is None else [np.asarray(cop, dtype=np.float64)]
         out.append(xy[strongest])
-        up = (d > self.contact_threshold) & (np.hypot(*(xy - xy[strongest]).T) <= START_REACH)
+        off = xy - xy[strongest]
+        up = (d > self.contact_threshold) & (np.hypot(off[:, 0], off[:, 1]) <= START_REACH)
         if up.any():
             out.append((d[up] @ xy[up]) / d[up].sum())
         kept: list[NDArray] = []
         for c in out:
-            if all(np.hypot(*(c - k)) > START_APART for k in kept):
+            if all(math.hypot(c[0] - k[0], c[1] - k[1]) > START_APART for k in kept):
                 kept.append(c)
-        return np.stack(kept)
+        return np.array(kept)
 
     def predicted(self, fits: list[RoundFit], xy: NDArray, skip: int = -1) -> NDArray[np.float64]:
         """Compressions [m] that the contacts ``fits`` (but number ``skip``) make at xy."""

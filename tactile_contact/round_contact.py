@@ -245,7 +245,7 @@ def fit_round_contact(
     readings (default: equal weights). ``polish`` False stops at fewer iterations (model
     choice between one and several contacts). None if no profile fits with F > 0.
     """
-    from tactile_contact._round_kernels import fit_one
+    from tactile_contact._round_kernels import fit_one, predict
 
     xy = np.asarray(taxel_xy, dtype=np.float64)
     d = np.asarray(delta, dtype=np.float64)
@@ -253,8 +253,10 @@ def fit_round_contact(
     local = distance_to_points(xy, c0) <= min(near, tables.reach)
     if not local.any():
         return None
-    w = np.ones(len(d)) if sigma is None else np.broadcast_to(np.asarray(sigma, float), d.shape)
-    w2 = 1.0 / np.square(w[local])
+    if sigma is None:
+        w2 = np.ones(int(local.sum()))
+    else:
+        w2 = 1.0 / np.square(np.broadcast_to(np.asarray(sigma, float), d.shape)[local])
     t0, dt = tables.log_grid
     _cost, x, y, t, force, fam = fit_one(
         tables.table,
@@ -264,7 +266,7 @@ def fit_round_contact(
         np.ascontiguousarray(xy[local]),
         np.ascontiguousarray(d[local]),
         np.ascontiguousarray(w2),
-        np.stack([_lattice(c, search, 5e-4) for c in c0]),
+        np.ascontiguousarray(c0[:, None, :] + _lattice_offsets(search, 5e-4)[None]),
         _spread(len(tables.radii), FIT_CENTRE_RADII),
         _spread(len(tables.radii), FIT_START_RADII),
         FIT_PRE_ITERATIONS,
@@ -273,9 +275,9 @@ def fit_round_contact(
     )
     if not force > 0:
         return None
-    fit = RoundFit(float(force), (float(x), float(y)), int(fam), float(math.exp(t)), 0.0)
-    res = float(np.linalg.norm(tables.predict(fit, xy) - d))
-    return RoundFit(fit.force, fit.center, fit.family, fit.radius, res)
+    pred = predict(tables.table, fam, t0, dt, tables.step, np.ascontiguousarray(xy), x, y, t, force)
+    res = float(np.linalg.norm(pred - d))
+    return RoundFit(float(force), (float(x), float(y)), int(fam), float(math.exp(t)), res)
 
 
 #: The fit starts from this many tabulated radii, evenly spread (every 3rd of the default 64):
