@@ -6,7 +6,9 @@ no leaked CAN bus or thread.
   frames flowing; threads and python-can virtual buses are counted before and after.
 - The driver goes through configure / activate / deactivate / cleanup 20 times over its
   lifecycle services, as ``ros2 lifecycle set`` drives it.
-- Each node executable gets a real SIGINT, during start-up and while running.
+- Each node executable gets a real SIGINT, during start-up and while running; the two ways a
+  SIGINT can meet a node still being built (its context shut down under an rcl call, or a
+  KeyboardInterrupt after the node's thread started) are also reproduced on purpose.
 """
 
 from __future__ import annotations
@@ -297,3 +299,59 @@ def test_sigint_during_start_up_and_while_running_is_clean(name: str, bundles: P
         text = "".join(lines)
         for bad in BAD_OUTPUT:
             assert bad not in text, f"{name}, SIGINT after {delay} s: {bad!r}\n{text[-3000:]}"
+
+
+# A SIGINT while the node is being built, at the two moments a timed signal only hits by chance
+# (on a busy machine): run_node builds the node through ``factory``.
+_INTERRUPTED_START = """
+import sys, threading
+import rclpy
+from tactile_contact.nodes import common
+from tactile_contact.nodes.skin_driver import SkinDriver
+from tactile_contact.nodes.skin_simulator import SkinSimulatorNode
+
+cls = {"skin_driver": SkinDriver, "skin_simulator": SkinSimulatorNode}[sys.argv[1]]
+
+def context_shut_down_under_the_constructor():
+    # What rclpy's signal thread does while this thread is still in an rcl call: the
+    # KeyboardInterrupt would come later, the RCLError of the call first.
+    rclpy.get_default_context().handle.shutdown()
+    return cls()
+
+class InterruptedOnceStarted(cls):
+    interrupted = False
+
+    def get_logger(self):
+        # the first log line of this thread after the node's own thread started
+        started = any(t.name in ("skin_rx", "skin_sim") for t in threading.enumerate())
+        main = threading.current_thread() is threading.main_thread()
+        if started and main and not self.interrupted:
+            InterruptedOnceStarted.interrupted = True
+            # a real SIGINT: the context shut down (not through rclpy.shutdown, so it destroys
+            # no node), then the KeyboardInterrupt
+            rclpy.get_default_context().handle.shutdown()
+            raise KeyboardInterrupt
+        return super().get_logger()
+
+factory = {"shutdown": context_shut_down_under_the_constructor, "interrupt": InterruptedOnceStarted}
+common.run_node(sys.argv[1], factory[sys.argv[2]], ["--ros-args", "-p", "interface:=virtual"])
+print("threads left:", sorted(t.name for t in threading.enumerate() if t.name != "MainThread"))
+"""
+
+
+@pytest.mark.parametrize("how", ["shutdown", "interrupt"])
+@pytest.mark.parametrize("name", ["skin_driver", "skin_simulator"])
+def test_sigint_while_the_node_is_built_is_clean(name: str, how: str) -> None:
+    done = subprocess.run(
+        [sys.executable, "-c", _INTERRUPTED_START, name, how],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+    )
+    text = done.stdout + done.stderr
+    assert done.returncode == 0, text[-3000:]
+    for bad in (*BAD_OUTPUT, "ERROR"):
+        assert bad not in text, f"{name}, {how}: {bad!r}\n{text[-3000:]}"
+    left = [line for line in done.stdout.splitlines() if line.startswith("threads left:")]
+    assert left == ["threads left: []"], text[-3000:]

@@ -189,17 +189,29 @@ def run_node(name: str, factory: Callable[[], Node], args: list[str] | None = No
     """
     node = None
     executor = None
+    initialized = False
     try:
-        rclpy.init(args=args)
-        node = factory()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
+        try:
+            rclpy.init(args=args)
+            initialized = True
+            node = factory()
+            executor = SingleThreadedExecutor()
+            executor.add_node(node)
+            executor.spin()
+        except ExternalShutdownException:
+            pass
+        except Exception as exc:
+            # rclpy's SIGINT handler shuts the context down from a thread of its own, and the
+            # KeyboardInterrupt follows only when this thread runs Python again: a Ctrl-C while
+            # the node is being built (a long rcl call on a busy machine) surfaces first as an
+            # RCLError "context is not valid" from that call. That is the Ctrl-C, not a node
+            # that cannot start.
+            if initialized and not rclpy.ok():
+                return
+            print(f"ERROR: {name}: {type(exc).__name__}: {exc}")  # could not start: say why
+            raise SystemExit(1) from None
+    except KeyboardInterrupt:  # (also when it comes while the handler above runs)
         pass
-    except Exception as exc:  # the node could not start: say why, exit 1
-        print(f"ERROR: {name}: {type(exc).__name__}: {exc}")
-        raise SystemExit(1) from None
     finally:
         # A Ctrl-C in a terminal reaches every process of the group, and ros2 launch forwards
         # its own SIGINT too: a second one during the cleanup must not interrupt it (it left

@@ -203,8 +203,15 @@ class SkinDriver(LifecycleNode):
             cm.declare_parameter(self, name, default, text, **options)
         self._names = [spec[0] for spec in PARAMETERS]
         cm.log_parameters(self, self._names)
-        if self._params_value("autostart") and self.trigger_configure() == SUCCESS:
-            self.trigger_activate()
+        try:
+            if self._params_value("autostart") and self.trigger_configure() == SUCCESS:
+                self.trigger_activate()
+        except BaseException:
+            # A Ctrl-C here leaves no node for run_node to destroy, and rclpy's SIGINT handler
+            # shuts the context down without destroying the nodes it tracks: the receive thread
+            # would run on and the bus stay open.
+            self._close()
+            raise
 
     def _params_value(self, name: str) -> Any:
         return self.get_parameter(name).value

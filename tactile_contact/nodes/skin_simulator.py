@@ -164,17 +164,24 @@ class SkinSimulatorNode(Node):
         if p["interface"] == "virtual":
             kwargs_bus["preserve_timestamps"] = True  # receivers see the stamps of the truth
         self._bus = can.Bus(**kwargs_bus)
-        self.truth_pub = self.create_publisher(
-            ContactState, f"{self.patch.name}/contact_truth", cm.SENSOR_QOS
-        )
-        self.periods_sent = 0
-        self.send_errors = 0
-        self._thread = threading.Thread(target=self._run, name="skin_sim", daemon=True)
-        self._thread.start()
-        self.get_logger().info(
-            f"simulating patch {self.patch.name} ({len(self.patch.modules)} modules), "
-            f"scenario {p['scenario']}, on {p['interface']}:{p['channel']}"
-        )
+        try:
+            self.truth_pub = self.create_publisher(
+                ContactState, f"{self.patch.name}/contact_truth", cm.SENSOR_QOS
+            )
+            self.periods_sent = 0
+            self.send_errors = 0
+            self._thread = threading.Thread(target=self._run, name="skin_sim", daemon=True)
+            self._thread.start()
+            self.get_logger().info(
+                f"simulating patch {self.patch.name} ({len(self.patch.modules)} modules), "
+                f"scenario {p['scenario']}, on {p['interface']}:{p['channel']}"
+            )
+        except BaseException:
+            # A Ctrl-C here leaves no node for run_node to destroy, and rclpy's SIGINT handler
+            # shuts the context down without destroying the nodes it tracks: the sending thread
+            # would run on and the bus stay open.
+            self._stop_and_close()
+            raise
 
     def _run(self) -> None:
         """Send one period every ``period_s`` of wall time until stopped; never raises."""
@@ -222,7 +229,7 @@ class SkinSimulatorNode(Node):
         msg.taxels_used = int(self.patch.valid_mask().sum())
         self.truth_pub.publish(msg)
 
-    def destroy_node(self) -> None:
+    def _stop_and_close(self) -> None:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
@@ -230,6 +237,9 @@ class SkinSimulatorNode(Node):
         if self._bus is not None:
             self._bus.shutdown()
             self._bus = None
+
+    def destroy_node(self) -> None:
+        self._stop_and_close()
         super().destroy_node()
 
 
