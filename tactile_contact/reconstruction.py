@@ -610,7 +610,9 @@ class Reconstructor:
             np.asarray(self.bundle["regulariser"]) if "regulariser" in self.bundle.arrays else None
         )
 
-    def _nnls(self, cols: NDArray | None, ok: NDArray, delta: NDArray, warm: bool):
+    def _nnls(
+        self, cols: NDArray | None, ok: NDArray, delta: NDArray, warm: bool, method: str = ""
+    ):
         key = np.packbits(ok).tobytes() + (b"" if cols is None else np.packbits(cols).tobytes())
         solver = self._cached(key) if warm else None
         if solver is None:
@@ -619,7 +621,7 @@ class Reconstructor:
             if reg is not None and cols is not None:
                 reg = reg[:, cols]
             solver = nnls_solver(
-                a, float(self.params["tikhonov"]), reg, str(self.params["nnls_method"])
+                a, float(self.params["tikhonov"]), reg, method or str(self.params["nnls_method"])
             )
             if warm and (ok.all() or self._recurring(key)):
                 # Kept across frames: the one-off work (H⁻¹ on the Gram route) pays off.
@@ -634,7 +636,9 @@ class Reconstructor:
             return q1, s1, it1, False
         seeds = self._centers[q1 >= float(self.params["seed_fraction"]) * peak]
         cols = distance_to_points(self._centers, seeds) <= float(self.params["support_radius"])
-        q2, s2, it2 = self._nnls(cols, ok, delta, warm=False)
+        # The support is a few tens of cells, solved once: scipy's Lawson–Hanson on the
+        # stacked system beats building a pivoting route in Python (~50 vs ~350 µs).
+        q2, s2, it2 = self._nnls(cols, ok, delta, warm=False, method="lawson_hanson")
         q = np.zeros_like(q1)
         q[cols] = q2
         return q, s1 and s2, it1 + it2, False

@@ -213,6 +213,28 @@ def test_nnls_matches_lsq_linear_on_a_love_problem(variant: Variant) -> None:
     assert f <= f_ref * (1 + TOL_OBJECTIVE[variant.method]) + gap_floor(variant.method, d)
 
 
+@pytest.mark.parametrize("reg", [None, "diff", "weights"])
+@pytest.mark.parametrize("name", ["love_taxels", "random_tall"])
+def test_lawson_hanson_method_stacks_the_tikhonov_problem(reg: str | None, name: str) -> None:
+    # The method hands scipy's Lawson–Hanson the stacked [A; λL]: checked against BVLS (another
+    # algorithm) on the same objective and against the KKT conditions of the Hessian formed here.
+    a, _, d0 = problem(name, seed=7)
+    d = d0 + 0.02 * np.abs(d0).max() * np.random.default_rng(2).normal(size=d0.size)
+    lam, ell = Variant("lawson_hanson", 0.05, reg, False).setup(a)
+    res = NnlsSolver(a, tikhonov=lam, regulariser=ell, method="lawson_hanson").solve(d)
+    big, rhs = stacked(a, d, lam, ell)
+    ref = scipy.optimize.lsq_linear(big, rhs, bounds=(0, np.inf), method="bvls", tol=1e-14)
+    f, f_ref = objective(a, d, lam, ell, res.x), objective(a, d, lam, ell, ref.x)
+    assert res.success and f <= f_ref * (1 + 1e-10) + 1e-10 * float(np.sum(d**2))
+    assert_kkt(a, d, lam, ell, res.x, 1e-8)
+    np.testing.assert_allclose(
+        NnlsSolver(a, tikhonov=lam, regulariser=ell, method="lawson_hanson").gram,
+        hessian(a, lam, ell),
+        rtol=1e-9,
+        atol=1e-9 * np.abs(hessian(a, lam, ell)).max(),
+    )
+
+
 @pytest.mark.parametrize("method", ["bpp", "fista"])
 @pytest.mark.parametrize("name", ["random_tall", "love_square", "love_fine"])
 def test_recovers_a_known_sparse_answer(method: str, name: str) -> None:
