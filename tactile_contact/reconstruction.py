@@ -252,9 +252,15 @@ class Reconstructor:
         return len(self.taxel_xy)
 
     def compression(self, delta_c: ArrayLike) -> NDArray[np.float64]:
-        """ΔC [F] → δ [m] with the bundle's sensor parameters."""
-        p = self.params
-        return delta_c_to_compression(delta_c, p["thickness"], p["epsilon_r"], p["area"])
+        """ΔC [F] → δ [m] with the bundle's sensor parameters (ValueError, naming it, for a
+        ΔC at or below −C0 or not finite)."""
+        dc = np.asarray(delta_c, dtype=np.float64)
+        h = self._thickness
+        den = self._eps_area + dc * h
+        if not np.all(den > 0.0):  # (NaN fails too) the checked conversion says what is wrong
+            p = self.params
+            return delta_c_to_compression(dc, p["thickness"], p["epsilon_r"], p["area"])
+        return dc * (h * h) / den
 
     def _on_count_lattice(self, delta: NDArray, ok: NDArray) -> bool:
         """True when the compressions [m] are whole 8-bit counts through the sensor model
