@@ -239,13 +239,20 @@ def _lattice_costs(table, t0, dt, step, xy, d, w2, centres, radius_index):  # pr
                 wa = weights[m]
                 num = 0.0
                 den = 0.0
+                # Tabulated radii fall on a row (wa 0, or 1 on the last): one row to read.
+                row = k if wa == 0.0 else (k + 1 if wa == 1.0 else -1)
                 for i in range(n_k):
                     if j[i] < 0:
                         continue
                     a = j[i]
-                    lo = table[f, k, a] + wr[i] * (table[f, k, a + 1] - table[f, k, a])
-                    hi = table[f, k + 1, a] + wr[i] * (table[f, k + 1, a + 1] - table[f, k + 1, a])
-                    val = lo + wa * (hi - lo)
+                    if row >= 0:
+                        val = table[f, row, a] + wr[i] * (table[f, row, a + 1] - table[f, row, a])
+                    else:
+                        lo = table[f, k, a] + wr[i] * (table[f, k, a + 1] - table[f, k, a])
+                        hi = table[f, k + 1, a] + wr[i] * (
+                            table[f, k + 1, a + 1] - table[f, k + 1, a]
+                        )
+                        val = lo + wa * (hi - lo)
                     num += w2[i] * val * d[i]
                     den += w2[i] * val * val
                 if den <= 0.0 or num <= 0.0:

@@ -275,8 +275,8 @@ class Reconstructor:
             return False
         d = delta[ok]
         counts = c * d / (h - d)
-        frac = np.abs(counts - np.rint(counts))
-        return bool(np.any(np.abs(counts) > 0.5) and frac.max(initial=1.0) < 0.01)
+        # (max over the taxels only: an ``initial`` would take part in it.)
+        return bool(np.any(np.abs(counts) > 0.5) and np.abs(counts - np.rint(counts)).max() < 0.01)
 
     def _check(self, x: ArrayLike, name: str, valid: ArrayLike | None) -> tuple[NDArray, NDArray]:
         v = np.asarray(x, dtype=np.float64)

@@ -309,9 +309,9 @@ def posterior_contact(
     sigma: float,
     *,
     half: float = 1.5e-3,
-    step: float = 3.75e-4,
+    step: float = 5.0e-4,
     near: float = 0.015,
-    radius_stride: int = 3,
+    radius_stride: int = 1,
 ) -> RoundFit:
     """Posterior mean of one round contact around the least-squares ``fit``.
 
@@ -326,6 +326,11 @@ def posterior_contact(
     the contact radius (the log-spaced tabulated radii weighted by a); F at its conditional
     optimum. Returns the posterior means of log F, c and log a and the family of most mass;
     ``residual`` stays the fit's. Taxels within ``near`` [m] of the fit are used.
+
+    Every tabulated radius (5 % apart; ``radius_stride`` > 1 skips some): with point-like
+    taxels the likelihood is sharp in radius, and every third radius biased the mean (8-bit,
+    calibrated point-taxel truth, ≥ 1 N: 11.0 % median force error against 8.5 % with all;
+    0.5 mm centre steps cost nothing there).
     """
     from tactile_contact._round_kernels import coarse
 

@@ -18,7 +18,7 @@ from tactile_contact.grids import disc_quadrature
 from tactile_contact.indenters import HertzSphere
 from tactile_contact.layout import load_layout, parse_layout
 from tactile_contact.reconstruction import ContactResult, Reconstructor
-from tactile_contact.sensor import compression_to_delta_c
+from tactile_contact.sensor import compression_to_delta_c, delta_c_to_compression
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = yaml.safe_load((ROOT / "config" / "hexagon_patch.yaml").read_text())
@@ -259,6 +259,21 @@ def test_pinv_path_is_the_precomputed_product(point_pinv, indentation):
     )
     # DESIGN.md §2: the plain pseudo-inverse loses almost all the net force
     assert abs(res.total_force) < 0.5 * 1.5
+
+
+def test_idle_8bit_deflections_are_no_contact(default):
+    # Deflections that are whole counts through the sensor model are read as counts (noise from
+    # the rounding, not the scale-free test): a lone count or two on an idle skin is no contact.
+    # A lattice test that never matched once let 1109 of 20 000 such frames through.
+    r, _ = default
+    rng = np.random.default_rng(11)
+    counts = np.rint(rng.normal(0.0, 0.15, (3000, 72)))
+    counts[counts.any(axis=1) == 0, 5] = 1.0  # every frame carries a count somewhere
+    p = r.params
+    d = delta_c_to_compression(counts * r._lsb, p["thickness"], p["epsilon_r"], p["area"])
+    assert r._on_count_lattice(d[0], np.ones(72, bool))
+    assert not r._on_count_lattice(d[0] * 1.05, np.ones(72, bool))
+    assert sum(r.solve_deflection(x).in_contact for x in d) == 0
 
 
 def test_a_noise_array_edited_in_place_is_read_again(default, indentation):
