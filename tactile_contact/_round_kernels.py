@@ -206,61 +206,51 @@ def lm_fit(table, f, t0, dt, step, xy, d, w2, x, y, t, iterations):  # pragma: n
 
 @numba.njit(**_JIT)
 def _lattice_costs(table, t0, dt, step, xy, d, w2, centres, radius_index):  # pragma: no cover
-    """(costs (F, R, L), forces (F, R, L)) as :func:`coarse`. Each centre's distances to the
-    taxels are shared by every family and radius, so they are found once per centre."""
+    """(costs (F, R, L), forces (F, R, L)) as :func:`coarse`. The tabulated radii's rows are
+    copied distance-major, so that one taxel's look-ups over every radius are contiguous (the
+    innermost loop, which the compiler vectorises), and each centre's taxel distances serve
+    every family and radius."""
     n_f = table.shape[0]
     n_k = xy.shape[0]
     n_j = table.shape[2]
-    cost = np.empty((n_f, radius_index.shape[0], centres.shape[0]))
-    force = np.empty_like(cost)
-    rows = np.empty(radius_index.shape[0], np.int64)
-    weights = np.empty(radius_index.shape[0])
-    for m in range(radius_index.shape[0]):
-        rows[m], weights[m] = _row(table, t0, dt, t0 + dt * radius_index[m])
+    n_r = radius_index.shape[0]
+    rows = np.empty((n_f, n_j, n_r))
+    for f in range(n_f):
+        for m in range(n_r):
+            for a in range(n_j):
+                rows[f, a, m] = table[f, radius_index[m], a]
     dd = 0.0
     for i in range(n_k):
         dd += w2[i] * d[i] * d[i]
-    j = np.empty(n_k, np.int64)
-    wr = np.empty(n_k)
+    cost = np.empty((n_f, n_r, centres.shape[0]))
+    force = np.empty_like(cost)
+    num = np.empty((n_f, n_r))
+    den = np.empty((n_f, n_r))
     for c in range(centres.shape[0]):
+        num[:] = 0.0
+        den[:] = 0.0
         for i in range(n_k):
             dx = centres[c, 0] - xy[i, 0]
             dy = centres[c, 1] - xy[i, 1]
             v = math.sqrt(dx * dx + dy * dy) / step
             if v > n_j - 1:
-                j[i] = -1
-                wr[i] = 0.0
-            else:
-                j[i] = min(int(v), n_j - 2)
-                wr[i] = v - j[i]
+                continue
+            a = min(int(v), n_j - 2)
+            wr = v - a
+            for f in range(n_f):
+                for m in range(n_r):
+                    lo = rows[f, a, m]
+                    val = lo + wr * (rows[f, a + 1, m] - lo)
+                    num[f, m] += w2[i] * val * d[i]
+                    den[f, m] += w2[i] * val * val
         for f in range(n_f):
-            for m in range(radius_index.shape[0]):
-                k = rows[m]
-                wa = weights[m]
-                num = 0.0
-                den = 0.0
-                # Tabulated radii fall on a row (wa 0, or 1 on the last): one row to read.
-                row = k if wa == 0.0 else (k + 1 if wa == 1.0 else -1)
-                for i in range(n_k):
-                    if j[i] < 0:
-                        continue
-                    a = j[i]
-                    if row >= 0:
-                        val = table[f, row, a] + wr[i] * (table[f, row, a + 1] - table[f, row, a])
-                    else:
-                        lo = table[f, k, a] + wr[i] * (table[f, k, a + 1] - table[f, k, a])
-                        hi = table[f, k + 1, a] + wr[i] * (
-                            table[f, k + 1, a + 1] - table[f, k + 1, a]
-                        )
-                        val = lo + wa * (hi - lo)
-                    num += w2[i] * val * d[i]
-                    den += w2[i] * val * val
-                if den <= 0.0 or num <= 0.0:
+            for m in range(n_r):
+                if den[f, m] <= 0.0 or num[f, m] <= 0.0:
                     cost[f, m, c] = dd
                     force[f, m, c] = 0.0
                 else:
-                    force[f, m, c] = num / den
-                    cost[f, m, c] = dd - num / den * num
+                    force[f, m, c] = num[f, m] / den[f, m]
+                    cost[f, m, c] = dd - num[f, m] / den[f, m] * num[f, m]
     return cost, force
 
 
