@@ -47,10 +47,26 @@ def _overrides(values: dict[str, Any]) -> list[Parameter]:
 
 
 def make_nodes(config: GraphConfig, context: Context) -> list[Node]:
-    """Simulator (optional), driver and reconstruction nodes, in data-flow order."""
+    """Simulator (optional), driver and reconstruction nodes, in data-flow order.
+
+    Created the other way round, readers first: the reconstruction loads and warms up its
+    bundles (seconds while numba's cache is cold), and a simulator already sending would play
+    its scenario to nobody meanwhile.
+    """
     common = {"context": context, "namespace": config.namespace}
-    nodes: list[Node] = []
     bus = {"interface": config.interface, "channel": config.channel}
+    nodes: list[Node] = [
+        ContactReconstructionNode(
+            parameter_overrides=_overrides(
+                {"bundles_dir": str(Path(config.bundles_dir)), **config.reconstruction}
+            ),
+            **common,
+        ),
+        SkinDriver(
+            parameter_overrides=_overrides({"layout": config.layout_path, **bus, **config.driver}),
+            **common,
+        ),
+    ]
     if config.simulate:
         from tactile_contact.nodes.skin_simulator import SkinSimulatorNode
 
@@ -60,21 +76,7 @@ def make_nodes(config: GraphConfig, context: Context) -> list[Node]:
                 parameter_overrides=_overrides({**sim_params, **config.simulator}), **common
             )
         )
-    nodes.append(
-        SkinDriver(
-            parameter_overrides=_overrides({"layout": config.layout_path, **bus, **config.driver}),
-            **common,
-        )
-    )
-    nodes.append(
-        ContactReconstructionNode(
-            parameter_overrides=_overrides(
-                {"bundles_dir": str(Path(config.bundles_dir)), **config.reconstruction}
-            ),
-            **common,
-        )
-    )
-    return nodes
+    return nodes[::-1]
 
 
 @contextmanager

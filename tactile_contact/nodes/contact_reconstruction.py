@@ -422,12 +422,16 @@ class PatchPipeline:
 
 
 def load_reconstructor(path: Path) -> Reconstructor:
-    """A Reconstructor of the bundle at ``path``, its arrays read into memory.
+    """A Reconstructor of the bundle at ``path``, its arrays read into memory, warmed up.
 
     Not memory-mapped: a bundle file overwritten in place while mapped would crash the process
-    (SIGBUS) at the next frame; read, the node keeps what it checked and loaded.
+    (SIGBUS) at the next frame; read, the node keeps what it checked and loaded. Warmed up
+    (:meth:`Reconstructor.warm_up`): the first contact must not wait for kernels to compile,
+    and a bundle that cannot solve is refused here, before it serves.
     """
-    return Reconstructor(load_bundle(path, mmap=False))
+    recon = Reconstructor(load_bundle(path, mmap=False))
+    recon.warm_up()
+    return recon
 
 
 def bundle_signature(path: Path) -> tuple:
