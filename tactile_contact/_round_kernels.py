@@ -206,7 +206,9 @@ def lm_fit(table, f, t0, dt, step, xy, d, w2, x, y, t, iterations):  # pragma: n
 
 @numba.njit(**_JIT)
 def _lattice_costs(table, t0, dt, step, xy, d, w2, centres, radius_index):  # pragma: no cover
-    """(costs (F, R, L), forces (F, R, L)) as :func:`coarse`. The tabulated radii's rows are
+    """Weighted cost of every family × tabulated radius ``radius_index`` (R,) × centre (L, 2),
+    the force at its non-negative optimum: (costs (F, R, L), forces (F, R, L)); cost ‖d‖²_w
+    and force 0 where no positive force fits. The tabulated radii's rows are
     copied distance-major, so that one taxel's look-ups over every radius are contiguous (the
     innermost loop, which the compiler vectorises), and each centre's taxel distances serve
     every family and radius."""
@@ -255,10 +257,40 @@ def _lattice_costs(table, t0, dt, step, xy, d, w2, centres, radius_index):  # pr
 
 
 @numba.njit(**_JIT)
-def coarse(table, t0, dt, step, xy, d, w2, centres, radius_index):  # pragma: no cover
-    """Weighted cost of every family × tabulated radius ``radius_index`` (R,) × centre (L, 2),
-    force at its non-negative optimum: (costs (F, R, L), forces (F, R, L))."""
-    return _lattice_costs(table, t0, dt, step, xy, d, w2, centres, radius_index)
+def posterior_mean(table, t0, dt, step, xy, d, w2, centres, radius_index):  # pragma: no cover
+    """Posterior over the lattice of :func:`_lattice_costs`, weights exp(−cost/2)·a where the
+    force is positive (a: the contact radius): (mass, mean log F, mean x, mean y [m], mean
+    log a, family of most mass); mass 0.0 when no force is positive. Reduced here, not in
+    numpy: a dozen array passes over (F, R, L) cost more than the lattice itself."""
+    cost, force = _lattice_costs(table, t0, dt, step, xy, d, w2, centres, radius_index)
+    n_f, n_r, n_c = cost.shape
+    best = np.inf
+    for f in range(n_f):
+        for m in range(n_r):
+            for c in range(n_c):
+                if force[f, m, c] > 0.0 and cost[f, m, c] < best:
+                    best = cost[f, m, c]
+    if best == np.inf:
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0
+    total = log_f = x = y = log_a = 0.0
+    family, family_mass = 0, -1.0
+    for f in range(n_f):
+        mass_f = 0.0
+        for m in range(n_r):
+            la = t0 + radius_index[m] * dt
+            a = math.exp(la)
+            for c in range(n_c):
+                if force[f, m, c] > 0.0:
+                    w = math.exp(-0.5 * (cost[f, m, c] - best)) * a
+                    mass_f += w
+                    log_f += w * math.log(force[f, m, c])
+                    x += w * centres[c, 0]
+                    y += w * centres[c, 1]
+                    log_a += w * la
+        total += mass_f
+        if mass_f > family_mass:
+            family, family_mass = f, mass_f
+    return total, log_f / total, x / total, y / total, log_a / total, family
 
 
 @numba.njit(**_JIT)

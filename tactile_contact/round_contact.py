@@ -332,42 +332,31 @@ def posterior_contact(
     calibrated point-taxel truth, ≥ 1 N: 11.0 % median force error against 8.5 % with all;
     0.5 mm centre steps cost nothing there).
     """
-    from tactile_contact._round_kernels import coarse
+    from tactile_contact._round_kernels import posterior_mean
 
     if not (math.isfinite(sigma) and sigma > 0):
         raise ValueError(f"sigma must be finite and > 0 [m], got {sigma!r}")
     xy = np.asarray(taxel_xy, dtype=np.float64)
     d = np.asarray(delta, dtype=np.float64)
     local = np.hypot(*(xy - np.asarray(fit.center)).T) <= near
-    centres = _lattice(np.asarray(fit.center), half, step)
     t0, dt = tables.log_grid
-    w2 = np.full(int(local.sum()), 1.0 / sigma**2)
-    cost, force = coarse(
+    mass, log_force, x, y, log_radius, family = posterior_mean(
         tables.table,
         t0,
         dt,
         tables.step,
         np.ascontiguousarray(xy[local]),
         np.ascontiguousarray(d[local]),
-        w2,
-        centres,
-        ri := np.arange(0, len(tables.radii), radius_stride, dtype=np.int64),
-    )  # (F, A, L), cost already divided by σ²
-    ok = force > 0
-    if not ok.any():
+        np.full(int(local.sum()), 1.0 / sigma**2),
+        _lattice(np.asarray(fit.center), half, step),
+        np.arange(0, len(tables.radii), radius_stride, dtype=np.int64),
+    )
+    if mass == 0.0:
         return fit
-    cost = np.where(ok, cost, np.inf)
-    radii = tables.radii[ri]
-    w = np.exp(-0.5 * (cost - cost.min())) * radii[None, :, None]
-    w /= w.sum()
-    log_force = float(np.sum(w * np.log(np.where(ok, force, 1.0))))
-    center = w.sum(axis=(0, 1)) @ centres
-    log_radius = float(w.sum(axis=(0, 2)) @ np.log(radii))
-    family = int(np.argmax(w.sum(axis=(1, 2))))
     return RoundFit(
         math.exp(log_force),
-        (float(center[0]), float(center[1])),
-        family,
+        (float(x), float(y)),
+        int(family),
         math.exp(log_radius),
         fit.residual,
     )

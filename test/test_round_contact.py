@@ -21,6 +21,7 @@ from tactile_contact.round_contact import (
     FAMILIES,
     RoundFit,
     fit_round_contact,
+    posterior_contact,
     round_tables,
 )
 from tactile_contact.sensor import value_count_farad
@@ -176,6 +177,56 @@ def test_weights_follow_the_per_taxel_noise(tables):
     fit = fit_round_contact(tables, SQUARE, bad, centre, sigma=sigma)
     assert fit.force == pytest.approx(clean.force, rel=1e-3)
     assert fit.force == pytest.approx(1.5, rel=1e-2)
+
+
+def _posterior_reference(tables, xy, d, fit, sigma, half, step, near):
+    """posterior_contact by its definition, in numpy: np.interp along each tabulated row, the
+    force's closed-form optimum, weights exp(−χ²/2)·a over the whole lattice."""
+    local = np.hypot(*(xy - fit.center).T) <= near
+    xy, d = xy[local], d[local]
+    offsets = np.arange(-half, half + step / 2, step)
+    centres = np.array([(fit.center[0] + u, fit.center[1] + v) for u in offsets for v in offsets])
+    r_j = np.arange(tables.table.shape[2]) * tables.step
+    rows = []
+    for f in range(len(FAMILIES)):
+        for k, a in enumerate(tables.radii):
+            for c in centres:
+                resp = np.interp(np.hypot(*(xy - c).T), r_j, tables.table[f, k], right=0.0)
+                num, den = resp @ d, resp @ resp
+                if num > 0 and den > 0:
+                    cost = (d @ d - num * num / den) / sigma**2
+                    rows.append((f, a, c, num / den, cost))
+    best = min(r[4] for r in rows)
+    w = np.array([np.exp(-0.5 * (r[4] - best)) * r[1] for r in rows])
+    w /= w.sum()
+    mean_c = w @ np.array([r[2] for r in rows])
+    family_mass = [w[[r[0] == f for r in rows]].sum() for f in range(len(FAMILIES))]
+    return (
+        np.exp(w @ np.log([r[3] for r in rows])),
+        mean_c,
+        np.exp(w @ np.log([r[1] for r in rows])),
+        int(np.argmax(family_mass)),
+    )
+
+
+@pytest.mark.parametrize(("where", "force"), [((0.0, 0.0), 0.4), ((1.1e-3, -0.7e-3), 1.5)])
+def test_posterior_is_its_definition(tables, where, force):
+    """The compiled lattice and its reduction against a plain-numpy evaluation of the model in
+    the docstring, on noisy readings of an off-lattice Hertz contact."""
+    g = np.arange(-3, 4) * 3e-3
+    xy = np.array([(x + 0.5e-3 * (y / 3e-3 % 2), y) for x in g for y in g])
+    truth = RoundFit(force, where, 1, 2.2e-3, 0.0)
+    rng = np.random.default_rng(2)
+    sigma = 4e-6
+    d = tables.predict(truth, xy) + rng.normal(0.0, sigma, len(xy))
+    start = RoundFit(force * 1.1, (where[0] + 3e-4, where[1] - 2e-4), 1, 2.0e-3, 0.0)
+    got = posterior_contact(tables, xy, d, start, sigma, half=1e-3, step=5e-4, near=0.012)
+    f, c, a, fam = _posterior_reference(tables, xy, d, start, sigma, 1e-3, 5e-4, 0.012)
+    assert got.force == pytest.approx(f, rel=1e-9)
+    assert np.allclose(got.center, c, rtol=0, atol=1e-12)
+    assert got.radius == pytest.approx(a, rel=1e-9)
+    assert got.family == fam
+    assert got.residual == start.residual
 
 
 def test_round_refinement_in_the_reconstructor(tmp_path):
