@@ -18,7 +18,7 @@ Targets (issue 17): 0 dropped, p99 ≤ 5 ms, reconstruction ≤ 30 % of one core
 ``--profile S`` py-spy samples the reconstruction for S s and the hottest functions are
 printed (self time and inclusive time).
 
-    python bench/bench_load.py [--seconds 60] [--patches 24] [--profile 15]
+    python bench/bench_load.py [--seconds 60] [--patches 24] [--profile 15] [--out docs/bench]
 """
 
 from __future__ import annotations
@@ -219,6 +219,7 @@ def main() -> int:
     ap.add_argument("--contacts", type=int, default=-1, help="patches pressed (default: all)")
     ap.add_argument("--warmup", type=float, default=8.0)
     ap.add_argument("--profile", type=float, default=0.0, help="py-spy both nodes for S s")
+    ap.add_argument("--out", type=Path, help="also write load.md (what is printed) here")
     ap.add_argument(
         "--driver-only", action="store_true", help="no reconstruction (the driver's own capacity)"
     )
@@ -332,48 +333,60 @@ def main() -> int:
     probe.destroy_node()
     rclpy.try_shutdown()
 
+    report: list[str] = []
+
+    def say(text: str) -> None:
+        print(text)
+        report.append(text)
+
     lat = np.asarray(latency) * 1e3
     d_cpu, r_cpu = (d1 - d0) / wall, (r1 - r0) / wall
     dropped_can = result["sent"] - result["frames"]
     published = result["published"]
     dropped_dds = published - frames_seen if not args.driver_only else 0
-    print(
+    say(
         f"{n} patches at {1000 // PERIOD_MS} Hz, {k} of them pressed (one contact each), "
         f"measured {wall:.0f} s (after {args.warmup:.0f} s warm-up); load average before: "
         f"{load0:.2f}"
     )
-    print(
+    say(
         f"CAN frames in: {result['sent']} sent, {result['frames']} received by the driver "
         f"(dropped {dropped_can}); rejected {result['rejected']}, incomplete periods "
         f"{result['incomplete']}, orphan B {result['orphan_b']}"
     )
-    print(
+    say(
         f"readings out: {result['readings']} module readings in {published} TaxelArray "
         f"messages ({result['stale_publications']} with a stale module); the reconstruction "
         f"received {frames_seen} (dropped {dropped_dds}); "
         f"{sum(contacts.values())} ContactState in the window"
     )
     if lat.size:
-        print(
+        say(
             f"latency CAN receive → contact published: p50 {np.percentile(lat, 50):.2f} ms, "
             f"p99 {np.percentile(lat, 99):.2f} ms, max {lat.max():.2f} ms "
             f"({lat.size} contacts)"
         )
-    print(
-        f"CPU: driver {d_cpu:.0%} of one core (sender thread excluded), reconstruction {r_cpu:.0%}"
-    )
+    say(f"CPU: driver {d_cpu:.0%} of one core (sender thread excluded), reconstruction {r_cpu:.0%}")
     ok_lat = lat.size > 0 and np.percentile(lat, 99) <= 5.0
-    print(
+    say(
         f"targets: 0 dropped {'met' if dropped_can == 0 and dropped_dds == 0 else 'MISSED'}; "
         f"p99 ≤ 5 ms {'met' if ok_lat else 'MISSED'}; reconstruction ≤ 30 % "
         f"{'met' if r_cpu <= 0.30 else 'MISSED'}"
     )
     if prof:
-        print("reconstruction profile (py-spy):")
-        print(prof)
+        say("reconstruction profile (py-spy):")
+        say(prof)
     if dprof:
-        print("driver profile (py-spy, the load generator's thread left out):")
-        print(dprof)
+        say("driver profile (py-spy, the load generator's thread left out):")
+        say(dprof)
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
+        cmd = " ".join(["python bench/bench_load.py", *sys.argv[1:]])
+        (args.out / "load.md").write_text(
+            f"# Load: 24 patches at 50 Hz over DDS (bench/bench_load.py)\n\n`{cmd}`\n\n```\n"
+            + "\n".join(report)
+            + "\n```\n"
+        )
     return 0
 
 

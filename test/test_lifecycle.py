@@ -294,8 +294,16 @@ def test_sigint_during_start_up_and_while_running_is_clean(name: str, bundles: P
                 time.sleep(0.05)
             time.sleep(0.3)
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=20.0) in (0, 130), "".join(lines)[-2000:]
+        code = proc.wait(timeout=20.0)
         reader.join(5.0)
+        # −SIGINT (a shell shows 130): the process ended by the signal's default action,
+        # quietly, as any program under Ctrl-C. Two ways, neither ours to change: the ROS
+        # wheels' bootstrapper (a .pth) re-executes the interpreter at start, which runs
+        # without Python's handler for its first ≈ 0.1 s; and CPython 3.11 marks a
+        # KeyboardInterrupt raised inside exec() of a string (scipy's array_api_compat loads
+        # numpy that way, during the simulator's start-up) as unhandled even though run_node
+        # catches it, and at exit re-raises SIGINT on itself.
+        assert code in (0, 130, -signal.SIGINT), f"exit {code}: " + "".join(lines)[-2000:]
         text = "".join(lines)
         for bad in BAD_OUTPUT:
             assert bad not in text, f"{name}, SIGINT after {delay} s: {bad!r}\n{text[-3000:]}"
