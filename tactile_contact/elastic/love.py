@@ -286,6 +286,11 @@ def _love_lateral(x, y, z, a, b, young, poisson, swap: bool) -> Array:
     if swap:  # u_y is u_x with the axes exchanged
         x, y, a, b = y, x, b, a
     x, y, z, a, b = np.broadcast_arrays(x, y, z, a, b)
+    # Odd in x, even in y: evaluated at |x|, |y| and given the sign of x, so mirror images
+    # agree exactly (near x = 0 the terms nearly cancel, and sums taken in mirrored order
+    # differ by their rounding: 2.5e-12 relative at x = 0.13 mm, y = 12 mm).
+    sign = np.sign(x)
+    x, y = np.abs(x), np.abs(y)
     c = (1.0 + nu) / (2.0 * np.pi * e)
 
     def near(xs, ys, as_, bs, m):
@@ -301,7 +306,7 @@ def _love_lateral(x, y, z, a, b, young, poisson, swap: bool) -> Array:
 
         return _gauss_cell(kern, xs, ys, as_, bs)
 
-    return _split(x.shape, x, y, a, b, np.sqrt(x * x + y * y + z * z), near, far)
+    return sign * _split(x.shape, x, y, a, b, np.sqrt(x * x + y * y + z * z), near, far)
 
 
 def love_ux(
@@ -344,6 +349,10 @@ def love_effective(
     if component == "y":
         x, y, a, b = y, x, b, a
     x, y, a, b = np.broadcast_arrays(x, y, a, b)
+    # Even in y, and in x for "z", odd in x otherwise: evaluated at |x|, |y| (the sign put
+    # back), so mirror images agree exactly and not only to the rounding of mirrored sums.
+    sign = np.sign(x)
+    x, y = np.abs(x), np.abs(y)
     c = (1.0 + nu) / (2.0 * np.pi * e)
     k = 1.0 - 2.0 * nu
 
@@ -372,7 +381,7 @@ def love_effective(
     def far(xs, ys, as_, bs, m):
         return c * _gauss_cell(kern, xs, ys, as_, bs)
 
-    return _split(x.shape, x, y, a, b, np.hypot(x, y), near, far)
+    return sign * _split(x.shape, x, y, a, b, np.hypot(x, y), near, far)
 
 
 def love_uz_effective(x, y, a, b, thickness, young, poisson) -> Array:
