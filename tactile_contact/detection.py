@@ -109,22 +109,29 @@ class ContactDetector:
         nothing, which only lowers z)."""
         z = self._filters @ delta.astype(np.float32)
         i = int(np.argmax(z))
+        return float(z[i]), self._share(delta, float(z[i])), i
+
+    def _share(self, delta: NDArray[np.float64], z: float) -> float:
+        """ρ = z²/‖δ/σ‖², the share of the frame's energy a filter reading ``z`` explains (0
+        for z ≤ 0 or a frame without energy)."""
+        if z <= 0:
+            return 0.0
         energy = float(np.dot(delta * delta, self._inv_var))
-        share = float(z[i]) ** 2 / energy if energy > 0 and z[i] > 0 else 0.0
-        return float(z[i]), share, i
+        return z * z / energy if energy > 0 else 0.0
+
+    def _passes(
+        self, delta: NDArray[np.float64], z: float, z_min: float, share_min: float, scale_free: bool
+    ) -> bool:
+        """z ≥ ``z_min``, or with ``scale_free`` its share ρ ≥ ``share_min`` (the energy sum
+        only when the z test fails: a frame without contact pays for little else)."""
+        return z >= z_min or (scale_free and self._share(delta, z) >= share_min)
 
     def detect(self, delta: NDArray[np.float64], scale_free: bool) -> tuple[bool, int]:
         """(contact?, index of the best bank contact); ``scale_free`` adds the ρ test."""
-        # statistic() without the energy sum unless the ρ test is asked for: a frame without
-        # contact pays for the filter bank and little else.
         z = self._filters @ delta.astype(np.float32)
         i = int(np.argmax(z))
-        if z[i] >= self.threshold:
-            return True, i
-        if not scale_free or z[i] <= 0:
-            return False, i
-        energy = float(np.dot(delta * delta, self._inv_var))
-        return energy > 0 and float(z[i]) ** 2 / energy >= self.share_threshold, i
+        hit = self._passes(delta, float(z[i]), self.threshold, self.share_threshold, scale_free)
+        return hit, i
 
     def near_miss(self, delta: NDArray[np.float64], k: int, scale_free: bool) -> bool:
         """Whether bank contact ``k`` (the best) came within NEAR_Z or NEAR_SHARE of a
@@ -132,12 +139,9 @@ class ContactDetector:
         small one between two taxels reads mostly on the bulge around it) then deserves a fit
         (:meth:`confirms`). On noise alone this is a few % of frames."""
         z = float(self._filters[k] @ delta.astype(np.float32))
-        if z >= NEAR_Z * self.threshold:
-            return True
-        if not scale_free or z <= 0:
-            return False
-        energy = float(np.dot(delta * delta, self._inv_var))
-        return energy > 0 and z * z / energy >= NEAR_SHARE * self.share_threshold
+        return self._passes(
+            delta, z, NEAR_Z * self.threshold, NEAR_SHARE * self.share_threshold, scale_free
+        )
 
     def confirms(
         self, delta: NDArray[np.float64], predicted: NDArray[np.float64], scale_free: bool
@@ -149,12 +153,9 @@ class ContactDetector:
         if norm <= 0:
             return False
         z = float(np.dot(w, delta)) / math.sqrt(norm)
-        if z >= self.refined_threshold:
-            return True
-        if not scale_free or z <= 0:
-            return False
-        energy = float(np.dot(delta * delta, self._inv_var))
-        return energy > 0 and z * z / energy >= self.refined_share_threshold
+        return self._passes(
+            delta, z, self.refined_threshold, self.refined_share_threshold, scale_free
+        )
 
     def rate_per_hour(self) -> float:
         """The stated bound on false contacts per hour at ``frame_rate`` (= ``per_hour``)."""

@@ -219,10 +219,8 @@ class Reconstructor:
         # The refined test's count: every tabulated profile (both families, every radius) on a
         # REFINE_PITCH lattice, which a fitted contact stands for (the responses of 2 mm
         # electrodes change little over a quarter of a millimetre).
-        refined = (
-            len(grid) * round(DETECTION_PITCH / REFINE_PITCH) ** 2 * self._round.table.shape[0]
-        )
-        refined *= len(self._round.radii)
+        per_centre = round(DETECTION_PITCH / REFINE_PITCH) ** 2
+        refined = len(grid) * per_centre * self._round.table.shape[0] * len(self._round.radii)
         return ContactDetector(
             np.concatenate(rows),
             np.concatenate(centres),
