@@ -157,6 +157,18 @@ class ContactFitter:
         return seeds
 
 
+def chi2(pred: NDArray, d: NDArray, sigma: float | NDArray, model_error: float) -> float:
+    """Σ (pred − d)²/(σ² + (e·pred)²): the misfit of predicted compressions ``pred`` [m] to the
+    readings ``d`` [m] against their noise ``sigma`` [m] (scalar or per reading) and a
+    relative model error ``model_error`` [-] of the prediction."""
+    return float(np.sum((pred - d) ** 2 / (np.square(sigma) + (model_error * pred) ** 2)))
+
+
+def chi2_limit(n: int) -> float:
+    """The largest :func:`chi2` of ``n`` readings that a contact explains: n + 5·√(2n)."""
+    return n + 5.0 * math.sqrt(2.0 * n)
+
+
 def dip_between(xy: NDArray, d: NDArray, i: int, j: int) -> bool:
     """True unless the taxels between taxels i and j (within 4 mm of the middle 60 % of the
     segment joining them) all read at least half of the weaker of the two: a broad contact

@@ -127,7 +127,7 @@ class Reconstructor:
             is excluded.
     """
 
-    def __init__(self, bundle: Bundle) -> None:
+    def __init__(self, bundle: Bundle, *, follow: bool = False) -> None:
         m = bundle.manifest
         self.bundle = bundle
         self.patch: str = str(m["patch"])
@@ -196,6 +196,14 @@ class Reconstructor:
         self.default_noise = np.full(self.n_taxels, self._count_sigma)
         self.detector = self._detector() if self._round is not None else None
         self._sigma_seen: NDArray[np.float64] | None = None
+        #: Follow a contact from frame to frame (:meth:`ContactFitter.fit`'s ``previous``):
+        #: the last frame's single least-squares contact starts this frame's fit, and the
+        #: multi-start search runs only when the followed contact does not explain the
+        #: readings. For a stream of frames of one patch (the node); off, every frame is
+        #: solved on its own and the result does not depend on the frames before.
+        self.follow = follow
+        self._followed: Any = None  # this frame's single contact, for the next frame
+        self._previous: Any = None  # the last frame's
 
     def _detector(self) -> Any:
         """Matched-filter bank (:mod:`tactile_contact.detection`): round contacts of three
@@ -252,10 +260,16 @@ class Reconstructor:
 
     @classmethod
     def from_bundle(
-        cls, path: str | Path, expected_layout: Any = None, *, verify: bool = True
+        cls,
+        path: str | Path,
+        expected_layout: Any = None,
+        *,
+        verify: bool = True,
+        follow: bool = False,
     ) -> Reconstructor:
-        """Load the bundle at ``path`` (errors: :class:`tactile_contact.bundle.BundleError`)."""
-        return cls(load_bundle(path, expected_layout, verify=verify))
+        """Load the bundle at ``path`` (errors: :class:`tactile_contact.bundle.BundleError`);
+        ``follow`` as the attribute."""
+        return cls(load_bundle(path, expected_layout, verify=verify), follow=follow)
 
     @property
     def n_taxels(self) -> int:
@@ -293,10 +307,15 @@ class Reconstructor:
         odd = np.where(np.arange(self.n_taxels) % 2 == 0, float(one.max()), 0.0)
         some = np.ones(self.n_taxels, dtype=bool)
         some[-1] = False
-        for frame in (one, two, lattice, odd):
-            self.solve_deflection(frame)
-            self.solve_deflection(frame, noise=self.default_noise)
-            self.solve_deflection(frame, some)
+        follow, self.follow = self.follow, True  # the followed fit's kernels too
+        try:
+            for frame in (one, two, lattice, odd):
+                self.solve_deflection(frame)
+                self.solve_deflection(frame, noise=self.default_noise)
+                self.solve_deflection(frame, some)
+        finally:
+            self.follow = follow
+            self._followed = self._previous = None
 
     def compression(self, delta_c: ArrayLike) -> NDArray[np.float64]:
         """ΔC [F] → δ [m] with the bundle's sensor parameters (ValueError, naming it, for a
@@ -428,6 +447,8 @@ class Reconstructor:
         quantised: bool = True,
     ) -> ContactResult:
         used = int(np.count_nonzero(ok))
+        # Only a frame solved by the direct round fit leaves a contact to follow.
+        self._previous, self._followed = self._followed, None
         # (Excluded taxels read 0 here.)
         active = int(np.count_nonzero(np.abs(delta) > self.contact_threshold))
         start = None
@@ -506,31 +527,62 @@ class Reconstructor:
     ) -> tuple[NDArray, list[Any], float] | None:
         """Round contacts fitted straight to the readings from the detector's best place, or
         None when they do not explain the readings to within noise and model error (χ² test):
-        then the grid path runs."""
-        from tactile_contact.contacts import ContactFitter
+        then the grid path runs. Following (``follow``), a frame that the followed contact
+        does not explain is searched afresh before it is given up."""
+        previous = self._previous if self.follow else None
+        if previous is not None and previous.age >= FOLLOW_FRAMES:
+            previous = None
+        out = self._direct(delta, ok, sigma, start, posterior, previous)
+        if out is None and previous is not None:
+            out = self._direct(delta, ok, sigma, start, posterior, None)
+        return out
+
+    def _direct(
+        self,
+        delta: NDArray,
+        ok: NDArray,
+        sigma: NDArray,
+        start: NDArray,
+        posterior: bool,
+        previous: Followed | None,
+    ) -> tuple[NDArray, list[Any], float] | None:
+        from tactile_contact.contacts import ContactFitter, chi2, chi2_limit
+        from tactile_contact.round_contact import follow_round_contact
 
         xy, d, s = self.taxel_xy[ok], delta[ok], sigma[ok]
+        limit = chi2_limit(len(d))
+        fits, followed = None, None
+        if previous is not None:
+            single = follow_round_contact(self._round, xy, d, previous.fit, sigma=s)
+            if single is not None:
+                misfit = chi2(self._round.predict(single, xy), d, s, ROUND_MODEL_ERROR)
+                if misfit <= min(limit, previous.misfit + FOLLOW_SLACK):
+                    fits = [single]
+                    followed = Followed(single, previous.misfit, previous.age + 1)
         fitter = ContactFitter(
             self._round, self._count_sigma, self.contact_threshold, s, self.max_contacts
         )
-        found = fitter.fit(xy, d, np.asarray(start, dtype=np.float64))
-        if found is None:
-            return None
-        fits = found[0]
+        if fits is None:
+            found = fitter.fit(xy, d, np.asarray(start, dtype=np.float64))
+            if found is None:
+                return None
+            fits = found[0]
+            if len(fits) == 1:
+                misfit = chi2(self._round.predict(fits[0], xy), d, s, ROUND_MODEL_ERROR)
+                followed = Followed(fits[0], misfit, 0)
         pred = fitter.predicted(fits, xy)
-        n = len(d)
         if posterior and len(fits) == 1:
             # Quantised readings: report the posterior mean over the size/centre/force valley
             # (round_contact.posterior_contact) instead of the least-squares point. Its error is
-            # the rounding's (one count/√6), not the learnt noise level: the same readings give
-            # the same contact whatever frames came before (a replayed bag reproduces the run).
+            # the rounding's (one count/√6), not the learnt noise level: unless the contact is
+            # followed, the same readings give the same contact whatever frames came before.
             from tactile_contact.round_contact import posterior_contact
 
             fits = [posterior_contact(self._round, xy, d, fits[0], self._count_sigma)]
             pred = fitter.predicted(fits, xy)
-        chi2 = float(np.sum((pred - d) ** 2 / (s**2 + (ROUND_MODEL_ERROR * pred) ** 2)))
-        if chi2 > n + 5.0 * math.sqrt(2.0 * n):
+        if chi2(pred, d, s, ROUND_MODEL_ERROR) > limit:
             return None
+        self._followed = followed
         return self._render(fits), fits, float(np.linalg.norm(pred - d))
 
     def _render(self, fits: list[Any]) -> NDArray[np.float64]:
@@ -725,6 +777,10 @@ class Reconstructor:
             return q1, s1, it1, False
         seeds = self._centers[q1 >= float(self.params["seed_fraction"]) * peak]
         cols = distance_to_points(self._centers, seeds) <= float(self.params["support_radius"])
+        if cols.sum() > SECOND_PASS_MAX_CELLS:
+            # Seeds all over the grid (a faint frame: pressure spread thin): the support is no
+            # smaller than the first pass's, and scipy on 500 columns takes 40-50 ms.
+            return q1, s1, it1, False
         # The support is a few tens of cells, solved once: scipy's Lawson–Hanson on the
         # stacked system beats building a pivoting route in Python (~50 vs ~350 µs).
         q2, s2, it2 = self._nnls(cols, ok, delta, warm=False, method="lawson_hanson")
@@ -760,6 +816,31 @@ class Reconstructor:
         return self._render(fits), fits
 
 
+@dataclass(frozen=True)
+class Followed:
+    """A single contact followed from frame to frame (``Reconstructor.follow``).
+
+    Attributes:
+        fit: its least-squares fit in the last frame.
+        misfit: :func:`tactile_contact.contacts.chi2` of the fit that the last full search
+            found; a followed fit may exceed it by FOLLOW_SLACK at most.
+        age: frames followed since that search.
+    """
+
+    fit: Any
+    misfit: float
+    age: int
+
+
+#: A followed contact is searched afresh after this many frames (0.2 s at 50 Hz): a followed
+#: fit stays in the basin it started in, and the full search may have found a deeper one.
+FOLLOW_FRAMES = 10
+#: A followed fit whose χ² exceeds that of the last full search by more than this is searched
+#: afresh. The χ² test alone is lenient (most 8-bit readings of a small contact are exact
+#: zeros: χ² ≈ 10 against a limit of 132 for 72 taxels), and a followed fit at χ² 74 where the
+#: search found 9 reported 0.5 N for 1.5 N.
+FOLLOW_SLACK = 10.0
+
 #: Operators and solvers kept, one per set of valid taxels (and pass): the full set and a few
 #: sets with taxels out. Each prepared NNLS solver holds N × N float64 (2.6 MB at N = 568).
 SOLVER_CACHE_SIZE = 8
@@ -770,6 +851,8 @@ SOLVER_CACHE_SIZE = 8
 #: forces as the whole-grid pass gave them, 1.7-1.9 instead of 2.3-2.9 ms per frame.
 FIRST_PASS_REACH = 6.0e-3
 FIRST_PASS_MAX_CELLS = 150
+#: The second pass (near the first pass's strong cells) runs only on this many cells at most.
+SECOND_PASS_MAX_CELLS = 150
 
 #: Lattice pitch [m] of the detector's bank, and how far beyond a taxel it reaches [m].
 DETECTION_PITCH = 2.0e-3

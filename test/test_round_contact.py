@@ -21,6 +21,7 @@ from tactile_contact.round_contact import (
     FAMILIES,
     RoundFit,
     fit_round_contact,
+    follow_round_contact,
     posterior_contact,
     round_tables,
 )
@@ -138,6 +139,40 @@ def test_fit_is_finite_or_none_on_any_readings(tables, seed, scale):
         values = (fit.force, *fit.center, fit.radius, fit.residual)
         assert np.all(np.isfinite(values)) and fit.force > 0
         assert RADII[0] <= fit.radius <= RADII[-1]
+
+
+def test_a_followed_contact_converges_to_the_searched_one(tables):
+    """From the last frame's contact 0.4 mm and 15 % in radius away, in the other family: the
+    local fit lands where the multi-start search does, and at the truth."""
+    xy = np.array([[i * 5.5e-3, j * 5.5e-3] for i in range(-2, 3) for j in range(-2, 3)])
+    xy[:, 0] += 0.3e-3 * (np.arange(len(xy)) % 3)
+    centre, force = np.array([1.37e-3, -2.11e-3]), 1.7
+    delta = tables.predict(RoundFit(force, tuple(centre), 1, 2.2e-3, 0.0), xy)
+    last = RoundFit(1.2, (1.7e-3, -1.9e-3), 0, 2.55e-3, 0.0)
+    got = follow_round_contact(tables, xy, delta, last)
+    searched = fit_round_contact(tables, xy, delta, start_xy=(0.0, 0.0))
+    assert got is not None and FAMILIES[got.family] == "hertz"
+    assert got.force == pytest.approx(searched.force, rel=1e-6)
+    assert got.center == pytest.approx(searched.center, abs=1e-8)
+    assert got.force == pytest.approx(force, rel=5e-3)
+    assert np.hypot(*(np.asarray(got.center) - centre)) < 2e-5
+    # Nothing to follow: no taxel within reach of the last contact, or no positive force.
+    assert follow_round_contact(tables, xy, delta, _start((0.2, 0.2))) is None
+    assert follow_round_contact(tables, xy, -delta, last) is None
+
+
+def test_profile_rows_are_the_table_distance_major(tables):
+    for stride in (1, 2):
+        rows, log_radius, family = tables.profile_rows(stride)
+        sub = tables.table[:, ::stride]
+        n_a = sub.shape[1]
+        for f in range(len(FAMILIES)):
+            for k in range(n_a):
+                np.testing.assert_array_equal(rows[:, f * n_a + k], sub[f, k])
+                assert family[f * n_a + k] == f
+                assert np.exp(log_radius[f * n_a + k]) == pytest.approx(tables.radii[k * stride])
+        assert tables.profile_rows(stride)[0] is rows  # built once
+        assert not rows.flags.writeable
 
 
 SQUARE = np.array([[i * 5.5e-3, j * 5.5e-3] for i in range(-3, 4) for j in range(-3, 4)])
