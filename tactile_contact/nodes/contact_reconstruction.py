@@ -81,6 +81,7 @@ PARAMETERS = (
     "visualization_every",
     "taxel_full_scale",
     "diagnostics_period",
+    "follow_contacts",
 )
 
 
@@ -421,15 +422,16 @@ class PatchPipeline:
         )
 
 
-def load_reconstructor(path: Path) -> Reconstructor:
-    """A Reconstructor of the bundle at ``path``, its arrays read into memory, warmed up.
+def load_reconstructor(path: Path, follow: bool = True) -> Reconstructor:
+    """A Reconstructor of the bundle at ``path``, its arrays read into memory, warmed up;
+    following contacts from frame to frame unless ``follow`` is False.
 
     Not memory-mapped: a bundle file overwritten in place while mapped would crash the process
     (SIGBUS) at the next frame; read, the node keeps what it checked and loaded. Warmed up
     (:meth:`Reconstructor.warm_up`): the first contact must not wait for kernels to compile,
     and a bundle that cannot solve is refused here, before it serves.
     """
-    recon = Reconstructor(load_bundle(path, mmap=False))
+    recon = Reconstructor(load_bundle(path, mmap=False), follow=follow)
     recon.warm_up()
     return recon
 
@@ -488,6 +490,13 @@ class ContactReconstructionNode(Node):
             unit="F",
             float_range=(1e-16, 1e-9),
         )
+        self.follow_contacts = declare_parameter(
+            self,
+            "follow_contacts",
+            True,
+            "start each frame's contact fit from the last frame's contact and search the whole "
+            "patch only when it no longer explains the readings (false: every frame on its own)",
+        )
         period = declare_parameter(
             self,
             "diagnostics_period",
@@ -504,7 +513,7 @@ class ContactReconstructionNode(Node):
         for name, path in self._paths.items():
             sig = bundle_signature(path)
             try:
-                recon = load_reconstructor(path)
+                recon = load_reconstructor(path, self.follow_contacts)
             except Exception as exc:  # every refusal is reported; other patches go on
                 self.load_errors[name] = f"{path}: {exc}"
                 self._refused[path] = sig
@@ -549,7 +558,7 @@ class ContactReconstructionNode(Node):
                     log.warning(f"patch {pipe.name}: {pipe.bundle_problem}")
                 continue
             try:
-                recon = load_reconstructor(pipe.bundle)
+                recon = load_reconstructor(pipe.bundle, self.follow_contacts)
                 if recon.patch != pipe.name:
                     raise ValueError(f"it is now a bundle of patch {recon.patch!r}")
             except Exception as exc:
@@ -572,7 +581,7 @@ class ContactReconstructionNode(Node):
             if not sig or sig == self._refused.get(path):
                 continue
             try:
-                recon = load_reconstructor(path)
+                recon = load_reconstructor(path, self.follow_contacts)
             except Exception as exc:
                 self._refused[path] = sig
                 self.load_errors[name] = f"{path}: {exc}"
