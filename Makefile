@@ -125,7 +125,8 @@ demo: setup bundles
 test-data: setup bundles
 	rm -rf test/data/hexagon_session
 	$(ROS_TEST_ENV) $(PY) -m tactile_contact.cli bringup --simulate --bundles bundles \
-	  --duration 7 --record test/data/hexagon_session --record-topics taxels contact contact_truth
+	  --duration 7 --no-follow --record test/data/hexagon_session \
+	  --record-topics taxels contact contact_truth
 
 bench: setup
 	$(PY) bench/tradeoff.py --out docs/bench

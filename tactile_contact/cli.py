@@ -38,6 +38,7 @@ def _bringup(args: argparse.Namespace) -> int:
         channel=args.channel or ("tactile_contact" if args.simulate else "can0"),
         scenario=args.scenario,
         namespace=args.namespace,
+        reconstruction={"follow_contacts": False} if args.no_follow else {},
     )
     context = Context()
     rclpy.init(context=context)
@@ -148,6 +149,12 @@ def main(argv: list[str] | None = None) -> int:
         help="per-patch streams to record",
     )
     b.add_argument("--storage", default="mcap", choices=["mcap", "sqlite3"])
+    b.add_argument(
+        "--no-follow",
+        action="store_true",
+        help="solve every frame on its own (follow_contacts false): a recording any replay "
+        "reproduces frame for frame",
+    )
     r = sub.add_parser("replay", help="replay a bag's taxel arrays into a reconstruction node")
     r.add_argument("bag")
     r.add_argument("--bundles", default="bundles")

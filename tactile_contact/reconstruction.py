@@ -832,9 +832,10 @@ class Followed:
     age: int
 
 
-#: A followed contact is searched afresh after this many frames (0.2 s at 50 Hz): a followed
+#: A followed contact is searched afresh after this many frames (0.5 s at 50 Hz): a followed
 #: fit stays in the basin it started in, and the full search may have found a deeper one.
-FOLLOW_FRAMES = 10
+#: (Load-bench frames: the same force and CoP errors for 10, 25 and 50.)
+FOLLOW_FRAMES = 25
 #: A followed fit whose χ² exceeds that of the last full search by more than this is searched
 #: afresh. The χ² test alone is lenient (most 8-bit readings of a small contact are exact
 #: zeros: χ² ≈ 10 against a limit of 132 for 72 taxels), and a followed fit at χ² 74 where the
