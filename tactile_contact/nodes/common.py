@@ -180,12 +180,20 @@ def diagnostic_status(
     )
 
 
-def run_node(name: str, factory: Callable[[], Node], args: list[str] | None = None) -> None:
+def run_node(
+    name: str, factory: Callable[[], Node], args: list[str] | None = None, *, events: bool = False
+) -> None:
     """Spin the node ``factory()`` makes until Ctrl-C or shutdown; if it cannot even be
     constructed (e.g. a parameter out of range), print ``ERROR: <name>: …`` and exit 1.
 
     Ctrl-C at any moment (during start-up too) ends it quietly: the executor is shut down,
     then the node destroyed (its threads joined, its bus closed), then the context.
+
+    ``events``: rclpy's EventsExecutor instead of the SingleThreadedExecutor. Why: the
+    latter rebuilds its wait set in Python for every callback, which for a node with 24
+    subscriptions costs ≈ 190 µs per message taken, callback run and message published,
+    against ≈ 90 µs (measured on this machine, 24 × 50 Hz). It is spun in ``spin_once``
+    steps: its ``spin()`` did not return on Ctrl-C (rclpy 9.1).
     """
     node = None
     executor = None
@@ -195,9 +203,17 @@ def run_node(name: str, factory: Callable[[], Node], args: list[str] | None = No
             rclpy.init(args=args)
             initialized = True
             node = factory()
-            executor = SingleThreadedExecutor()
-            executor.add_node(node)
-            executor.spin()
+            if events:
+                from rclpy.experimental import EventsExecutor
+
+                executor = EventsExecutor()
+                executor.add_node(node)
+                while rclpy.ok():
+                    executor.spin_once(timeout_sec=0.1)
+            else:
+                executor = SingleThreadedExecutor()
+                executor.add_node(node)
+                executor.spin()
         except ExternalShutdownException:
             pass
         except Exception as exc:

@@ -613,7 +613,7 @@ class ContactReconstructionNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run ``contact_reconstruction`` until Ctrl-C; exit 1 with a message if it cannot start."""
-    run_node("contact_reconstruction", ContactReconstructionNode, args)
+    run_node("contact_reconstruction", ContactReconstructionNode, args, events=True)
 
 
 if __name__ == "__main__":
