@@ -144,3 +144,17 @@ def test_following_is_off_by_default_and_after_no_contact(bundle, truth):
     assert f._followed is not None
     f.solve_deflection(np.zeros(f.n_taxels), noise=f.default_noise)
     assert f._followed is None
+
+
+def test_noise_right_after_a_followed_press_is_no_contact(bundle, truth):
+    """The followed contact is tried before the filter bank; on the noise frame after a
+    release it must not be reported (its own matched filter faces the refined threshold):
+    300 presses, each followed by white noise at the assumed level."""
+    f = Reconstructor.from_bundle(bundle, follow=True)
+    rng = np.random.default_rng(11)
+    press = counts(f, truth.compression(HertzSphere(6e-3), 1.5, f.taxel_xy[30]), rng)
+    for _ in range(300):
+        assert f.solve_deflection(press, noise=f.default_noise).in_contact
+        assert f._followed is not None
+        noise = rng.normal(size=f.n_taxels) * f.default_noise
+        assert not f.solve_deflection(noise, noise=f.default_noise).in_contact
