@@ -599,7 +599,6 @@ class Reconstructor:
             if len(fits) == 1:
                 misfit = chi2(self._round.predict(fits[0], xy), d, s, ROUND_MODEL_ERROR)
                 followed = Followed(fits[0], misfit, 0)
-        pred = fitter.predicted(fits, xy)
         if posterior and len(fits) == 1:
             # Quantised readings: report the posterior mean over the size/centre/force valley
             # (round_contact.posterior_contact) instead of the least-squares point. Its error is
@@ -608,7 +607,7 @@ class Reconstructor:
             from tactile_contact.round_contact import posterior_contact
 
             fits = [posterior_contact(self._round, xy, d, fits[0], self._count_sigma)]
-            pred = fitter.predicted(fits, xy)
+        pred = fitter.predicted(fits, xy)
         if chi2(pred, d, s, ROUND_MODEL_ERROR) > limit:
             return None
         self._followed = followed
