@@ -579,7 +579,10 @@ class Reconstructor:
         limit = chi2_limit(len(d))
         fits, followed = None, None
         if previous is not None:
-            single = follow_round_contact(self._round, xy, d, previous.fit, sigma=s)
+            # The posterior spans both families anyway: only the followed one is fitted.
+            single = follow_round_contact(
+                self._round, xy, d, previous.fit, sigma=s, other_family=not posterior
+            )
             if single is not None:
                 misfit = chi2(self._round.predict(single, xy), d, s, ROUND_MODEL_ERROR)
                 slack = FOLLOW_SLACK + FOLLOW_SLACK_SHARE * previous.misfit

@@ -306,10 +306,12 @@ def follow_round_contact(
     *,
     near: float = 0.015,
     sigma: float | ArrayLike | None = None,
+    other_family: bool = True,
 ) -> RoundFit | None:
     """Least-squares fit of one round contact started from ``previous`` (the last frame's
     contact on this patch): a Levenberg–Marquardt run from its centre and radius, once per
-    family, the lower cost kept. Arguments and result as :func:`fit_round_contact`.
+    family (``other_family`` False: its family only), the lower cost kept. Arguments and
+    result as :func:`fit_round_contact`.
 
     Why: at 50 Hz a contact moves a fraction of a millimetre between frames, so it is already
     in the basin the multi-start search would find, for a tenth of the search's cost. The
@@ -333,7 +335,7 @@ def follow_round_contact(
     lxy, ld = np.ascontiguousarray(xy[local]), np.ascontiguousarray(d[local])
     t_start = math.log(previous.radius)
     best = None
-    for fam in (previous.family, 1 - previous.family):
+    for fam in (previous.family, 1 - previous.family) if other_family else (previous.family,):
         cost, x, y, t, force = lm_fit(
             tables.table, fam, t0, dt, tables.step, lxy, ld, w2, x0, y0, t_start, FIT_ITERATIONS
         )
