@@ -268,13 +268,10 @@ def fit_round_contact(
     xy = np.asarray(taxel_xy, dtype=np.float64)
     d = np.asarray(delta, dtype=np.float64)
     c0 = np.asarray(start_xy, dtype=np.float64).reshape(-1, 2)
-    local = distance_to_points(xy, c0) <= min(near, tables.reach)
-    if not local.any():
+    found = _near(tables, xy, d, c0, near, sigma)
+    if found is None:
         return None
-    if sigma is None:
-        w2 = np.ones(int(local.sum()))
-    else:
-        w2 = 1.0 / np.square(np.broadcast_to(np.asarray(sigma, float), d.shape)[local])
+    local, w2 = found
     t0, dt = tables.log_grid
     _cost, x, y, t, force, fam = fit_one(
         tables.table,
@@ -296,6 +293,24 @@ def fit_round_contact(
     pred = predict(tables.table, fam, t0, dt, tables.step, np.ascontiguousarray(xy), x, y, t, force)
     res = float(np.linalg.norm(pred - d))
     return RoundFit(float(force), (float(x), float(y)), int(fam), float(math.exp(t)), res)
+
+
+def _near(
+    tables: RoundTables,
+    xy: NDArray,
+    d: NDArray,
+    centres: NDArray,
+    near: float,
+    sigma: float | ArrayLike | None,
+) -> tuple[NDArray[np.bool_], NDArray[np.float64]] | None:
+    """(taxels within ``near`` [m] (and the tables' reach) of any of ``centres`` (S, 2),
+    their weights 1/σ² (1 without ``sigma``)), or None when there are none."""
+    local = distance_to_points(xy, centres) <= min(near, tables.reach)
+    if not local.any():
+        return None
+    if sigma is None:
+        return local, np.ones(int(local.sum()))
+    return local, 1.0 / np.square(np.broadcast_to(np.asarray(sigma, float), d.shape)[local])
 
 
 def follow_round_contact(
@@ -323,14 +338,10 @@ def follow_round_contact(
     xy = np.asarray(taxel_xy, dtype=np.float64)
     d = np.asarray(delta, dtype=np.float64)
     x0, y0 = previous.center
-    dist = np.hypot(xy[:, 0] - x0, xy[:, 1] - y0)
-    local = dist <= min(near, tables.reach)
-    if not local.any():
+    found = _near(tables, xy, d, np.array([[x0, y0]]), near, sigma)
+    if found is None:
         return None
-    if sigma is None:
-        w2 = np.ones(int(local.sum()))
-    else:
-        w2 = 1.0 / np.square(np.broadcast_to(np.asarray(sigma, float), d.shape)[local])
+    local, w2 = found
     t0, dt = tables.log_grid
     lxy, ld = np.ascontiguousarray(xy[local]), np.ascontiguousarray(d[local])
     t_start = math.log(previous.radius)
