@@ -196,11 +196,11 @@ class Reconstructor:
         self.default_noise = np.full(self.n_taxels, self._count_sigma)
         self.detector = self._detector() if self._round is not None else None
         self._sigma_seen: NDArray[np.float64] | None = None
-        #: Follow a contact from frame to frame (:meth:`ContactFitter.fit`'s ``previous``):
-        #: the last frame's single least-squares contact starts this frame's fit, and the
-        #: multi-start search runs only when the followed contact does not explain the
-        #: readings. For a stream of frames of one patch (the node); off, every frame is
-        #: solved on its own and the result does not depend on the frames before.
+        #: Follow a contact from frame to frame (:class:`Followed`): the last frame's single
+        #: least-squares contact starts this frame's fit, and the multi-start search runs
+        #: only when the followed contact does not explain the readings. For a stream of
+        #: frames of one patch (the node); off, every frame is solved on its own and the
+        #: result does not depend on the frames before.
         self.follow = follow
         self._followed: Any = None  # this frame's single contact, for the next frame
         self._previous: Any = None  # the last frame's
@@ -509,14 +509,17 @@ class Reconstructor:
         """Following, the followed contact before the filter bank: its fit (no search), kept
         if it explains the readings and its own matched filter clears the detector's refined
         thresholds (those of every tabulated profile on a 0.25 mm lattice, stricter than the
-        bank's: the false-alarm rate holds). Else None, and the frame takes the usual path.
-        Why: with 24 patches the 3150 × 72 bank of each no longer stays in the cache, and
-        reading it is ≈ 60 µs a frame."""
+        bank's: the false-alarm rate holds). Else None, and the frame takes the usual path;
+        a followed contact that does not explain the readings is dropped for it, so it
+        searches afresh at once (following again would fail again). Why: with 24 patches the
+        3150 × 72 bank of each no longer stays in the cache, and reading it is ≈ 60 µs a
+        frame."""
         previous = self._previous if self.follow else None
         if previous is None or previous.age >= FOLLOW_FRAMES or self.method != "nnls_tikhonov":
             return None
         fit = self._direct(delta, ok, sigma, None, quantised, previous)
         if fit is None:
+            self._previous = None
             return None
         if not self.detector.confirms(delta, self._predicted(fit[1], ok), scale_free):
             self._followed = None
@@ -854,7 +857,7 @@ class Followed:
     Attributes:
         fit: its least-squares fit in the last frame.
         misfit: :func:`tactile_contact.contacts.chi2` of the fit that the last full search
-            found; a followed fit may exceed it by FOLLOW_SLACK at most.
+            found; a followed fit may exceed it by FOLLOW_SLACK + FOLLOW_SLACK_SHARE of it.
         age: frames followed since that search.
     """
 
