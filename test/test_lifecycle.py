@@ -144,6 +144,9 @@ def test_node_starts_and_stops_20_times_cleanly(
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.experimental import EventsExecutor
+
+    from tactile_contact.nodes.common import spin_until_shutdown
 
     channel = f"lifecycle-{name}"
     feeder = Feeder(channel) if name == "skin_driver" else None
@@ -155,14 +158,19 @@ def test_node_starts_and_stops_20_times_cleanly(
             rclpy.init(context=context)
             node = _make(name, context, channel, bundles)
             extra = _taxel_source(context)[0] if name == "contact_reconstruction" else None
-            executor = SingleThreadedExecutor(context=context)
+            # the executor run_node gives each node
+            executor = (
+                EventsExecutor(context=context)
+                if name == "contact_reconstruction"
+                else SingleThreadedExecutor(context=context)
+            )
             executor.add_node(node)
             if extra is not None:
                 executor.add_node(extra)
 
-            def spin(ex: Any = executor) -> None:
+            def spin(ex: Any = executor, ctx: Context = context) -> None:
                 with contextlib.suppress(ExternalShutdownException):
-                    ex.spin()
+                    spin_until_shutdown(ex, ctx)  # as run_node spins
 
             spinner = threading.Thread(target=spin, name="spin")
             spinner.start()
