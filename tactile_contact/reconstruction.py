@@ -177,17 +177,13 @@ class Reconstructor:
         if p.get("refine") == "round":
             from tactile_contact.round_contact import RoundTables
 
-            self._round = RoundTables(
-                np.asarray(bundle["round_radii"], dtype=np.float64),
-                float(p["round_step"]),
-                np.asarray(bundle["round_table"], dtype=np.float64),
+            self._round = RoundTables.shared(
+                bundle["round_radii"], float(p["round_step"]), bundle["round_table"]
             )
         self._point = None
         if self._round is not None and "round_point_table" in bundle.arrays:
-            self._point = RoundTables(
-                self._round.radii,
-                self._round.step,
-                np.asarray(bundle["round_point_table"], dtype=np.float64),
+            self._point = RoundTables.shared(
+                self._round.radii, self._round.step, bundle["round_point_table"]
             )
         self._dg_centers = self.deflection_grid.centers()
         self._noise_cache: tuple[Any, NDArray[np.float64]] | None = None

@@ -17,7 +17,9 @@ linearly in log a. No ROS import.
 from __future__ import annotations
 
 import functools
+import hashlib
 import math
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +29,9 @@ from numpy.typing import ArrayLike, NDArray
 from tactile_contact.elastic import regular_grid_operator
 from tactile_contact.grids import disc_quadrature, distance_to_points
 from tactile_contact.indenters import FlatPunch, HertzSphere
+
+#: RoundTables.shared's tables, by (step, content digest); an entry goes with its last user.
+_SHARED: weakref.WeakValueDictionary[tuple[float, str], RoundTables] = weakref.WeakValueDictionary()
 
 #: Families of the profile library, in table order.
 FAMILIES = ("punch", "hertz")
@@ -60,6 +65,29 @@ class RoundTables:
         )
         # The compiled fit reads the table row-major.
         object.__setattr__(self, "table", np.ascontiguousarray(self.table, dtype=np.float64))
+
+    @classmethod
+    def shared(cls, radii: ArrayLike, step: float, table: ArrayLike) -> RoundTables:
+        """Tables equal to ``RoundTables(radii, step, table)``, one object for all equal ones
+        alive in this process (its arrays read-only).
+
+        Why: the patches of a skin built from the same modules and the same response have equal
+        tables (≈ 0.2 MB each, with the posterior's distance-major copy 0.4 MB); a node
+        serving 24 of them read 24 copies in turn, and its posterior kernel took ≈ 125 µs a
+        frame against ≈ 77 µs with the tables in the cache (bench_load, 24 patches)."""
+        radii = np.ascontiguousarray(radii, dtype=np.float64)
+        table = np.ascontiguousarray(table, dtype=np.float64)
+        digest = hashlib.blake2b(digest_size=16)
+        for a in (radii, table):
+            digest.update(repr(a.shape).encode())
+            digest.update(a.tobytes())
+        key = (float(step), digest.hexdigest())
+        found = _SHARED.get(key)
+        if found is None:
+            radii.flags.writeable = table.flags.writeable = False
+            found = cls(radii, float(step), table)
+            _SHARED[key] = found
+        return found
 
     @property
     def log_grid(self) -> tuple[float, float]:

@@ -20,6 +20,7 @@ from tactile_contact.reconstruction import Reconstructor
 from tactile_contact.round_contact import (
     FAMILIES,
     RoundFit,
+    RoundTables,
     fit_round_contact,
     follow_round_contact,
     posterior_contact,
@@ -173,6 +174,21 @@ def test_profile_rows_are_the_table_distance_major(tables):
                 assert np.exp(log_radius[f * n_a + k]) == pytest.approx(tables.radii[k * stride])
         assert tables.profile_rows(stride)[0] is rows  # built once
         assert not rows.flags.writeable
+
+
+def test_shared_tables_are_one_object_per_content(tables):
+    a = RoundTables.shared(tables.radii, tables.step, tables.table.copy())
+    b = RoundTables.shared(tables.radii.copy(), tables.step, tables.table.copy())
+    assert a is b
+    np.testing.assert_array_equal(a.table, tables.table)
+    assert not a.table.flags.writeable and not a.radii.flags.writeable
+    other = tables.table.copy()
+    other[0, 0, 0] *= 1.0 + 1e-12  # any difference, however small: other tables
+    assert RoundTables.shared(tables.radii, tables.step, other) is not a
+    assert RoundTables.shared(tables.radii, tables.step * 2, tables.table) is not a
+    xy = SQUARE[:20]
+    fit = RoundFit(1.0, (1e-3, -2e-3), 1, 2e-3, 0.0)
+    np.testing.assert_array_equal(a.predict(fit, xy), tables.predict(fit, xy))
 
 
 SQUARE = np.array([[i * 5.5e-3, j * 5.5e-3] for i in range(-3, 4) for j in range(-3, 4)])
