@@ -513,3 +513,36 @@ def test_any_reading_gives_a_finite_nonnegative_published_summary(
         assert grid is None or np.isfinite(grid).all()
     if result.traction is not None:
         assert result.traction.min() >= -1e-9 * max(1.0, np.abs(result.traction).max())
+
+
+def test_diagnostics_are_taken_one_patch_a_step_and_published_whole(
+    ros_context: object, bundles: Path, tmp_path: Path
+) -> None:
+    """A period's diagnostics work is spread (it held every frame behind it for ≈ 10 ms at
+    24 patches): the bundles are watched in one step, each patch's status taken in another,
+    and the array that goes out once a period holds every patch."""
+    shutil.copytree(bundles / "hexagon", tmp_path / "hexagon")
+    _second_patch(bundles, tmp_path)
+    rig = TwoPatchRig(ros_context, tmp_path)
+    node = rig.node
+    taken: list[str] = []
+    for name, pipe in node.pipelines.items():
+        original = pipe.diagnostics
+
+        def counted(name: str = name, original: object = original) -> object:
+            taken.append(name)
+            return original()
+
+        pipe.diagnostics = counted
+    n = len(rig.diags)
+    per_step = []
+    for _ in range(3 * (len(node.pipelines) + 1)):
+        before = len(taken)
+        node.diagnostics_step()
+        per_step.append(len(taken) - before)
+    assert max(per_step) == 1 and sum(per_step) == 3 * len(node.pipelines), per_step
+    assert spin_until(rig.executor, lambda: len(rig.diags) >= n + 3)
+    for array in rig.diags[n:]:
+        names = {s.name for s in array.status}
+        assert names == {"contact_reconstruction: hexagon", "contact_reconstruction: forearm"}
+    rig.close()
