@@ -15,6 +15,7 @@ Everything here is a thin convenience over rclpy; no node logic lives in this mo
 
 from __future__ import annotations
 
+import gc
 import math
 import signal
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -220,6 +221,12 @@ def run_node(
             rclpy.init(args=args)
             initialized = True
             node = factory()
+            # What the node holds from now on (bundles, tables, rclpy's objects: ≈ 200 000 at
+            # 24 patches) is left out of the cyclic collector's full passes: such a pass
+            # stopped the node for ≈ 85 ms, ≈ 3.5 ms after this. (A bundle replaced later is
+            # freed by reference counting; only a reference cycle in it would stay.)
+            gc.collect()
+            gc.freeze()
             if events:
                 from rclpy.experimental import EventsExecutor
 
