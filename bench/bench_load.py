@@ -127,8 +127,14 @@ def driver_process(layout: Path, n: int, channel: str, pressed: int, burst: bool
     slots = 1 if burst else n
     step = PERIOD_MS * 1e-3 / slots
 
+    # Frames flow once the parent says GO (a line on stdin): when every patch's taxel topic
+    # has its subscriber, so that none is lost to discovery and counted as dropped.
+    go = threading.Event()
+    threading.Thread(target=lambda: (sys.stdin.readline(), go.set()), daemon=True).start()
+
     def send() -> None:
         info["sender_tid"] = threading.get_native_id()
+        go.wait()
         t0 = time.monotonic()
         j = 0
         while not stop.wait(max(0.0, t0 + j * step - time.monotonic())):
@@ -391,6 +397,7 @@ def run_phase(
             str(k),
             "1" if args.burst else "0",
         ],
+        stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         env=env,
@@ -434,7 +441,19 @@ def run_phase(
         target=lambda: [executor.spin_once(timeout_sec=0.05) for _ in iter(stop.is_set, True)]
     )
     spinner.start()
-    time.sleep(args.warmup)  # discovery, calibration, numba warm-up
+    deadline = time.monotonic() + 120.0
+    while not args.driver_only and time.monotonic() < deadline:
+        if all(probe.count_subscribers(f"patch{j:02d}/taxels") for j in range(n)):
+            break
+        time.sleep(0.1)
+    else:
+        if not args.driver_only:
+            raise SystemExit("the reconstruction did not subscribe to every patch in 120 s")
+    time.sleep(0.5)  # (the driver's side of the discovery)
+    assert driver.stdin is not None
+    driver.stdin.write("GO\n")
+    driver.stdin.flush()
+    time.sleep(args.warmup)  # calibration, numba warm-up
     measuring.set()
     load0 = os.getloadavg()[0]
     w0 = time.monotonic()
