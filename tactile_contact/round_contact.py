@@ -73,10 +73,11 @@ class RoundTables:
 
         Why: the patches of a skin built from the same modules and the same response have equal
         tables (≈ 0.2 MB each, with the posterior's distance-major copy 0.4 MB); a node
-        serving 24 of them read 24 copies in turn, and its posterior kernel took ≈ 125 µs a
-        frame against ≈ 77 µs with the tables in the cache (bench_load, 24 patches)."""
-        radii = np.ascontiguousarray(radii, dtype=np.float64)
-        table = np.ascontiguousarray(table, dtype=np.float64)
+        serving 24 of them read 24 copies in turn (24 patches' frames interleaved: mean
+        339 µs a frame with a copy each, 308–322 µs shared)."""
+        # Copies: the caller's arrays stay writeable.
+        radii = np.array(radii, dtype=np.float64, order="C")
+        table = np.array(table, dtype=np.float64, order="C")
         digest = hashlib.blake2b(digest_size=16)
         for a in (radii, table):
             digest.update(repr(a.shape).encode())

@@ -177,7 +177,9 @@ def test_profile_rows_are_the_table_distance_major(tables):
 
 
 def test_shared_tables_are_one_object_per_content(tables):
-    a = RoundTables.shared(tables.radii, tables.step, tables.table.copy())
+    mine = tables.table.copy()
+    a = RoundTables.shared(tables.radii, tables.step, mine)
+    assert mine.flags.writeable  # the caller's array is not frozen
     b = RoundTables.shared(tables.radii.copy(), tables.step, tables.table.copy())
     assert a is b
     np.testing.assert_array_equal(a.table, tables.table)
