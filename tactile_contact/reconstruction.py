@@ -586,7 +586,8 @@ class Reconstructor:
                 self._round, xy, d, previous.fit, sigma=s, other_family=not posterior
             )
             if single is not None:
-                misfit = chi2(self._round.predict(single, xy), d, s, ROUND_MODEL_ERROR)
+                pred = self._round.predict(single, xy)
+                misfit = chi2(pred, d, s, ROUND_MODEL_ERROR)
                 slack = FOLLOW_SLACK + FOLLOW_SLACK_SHARE * previous.misfit
                 if misfit <= min(limit, previous.misfit + slack):
                     fits = [single]
@@ -601,7 +602,8 @@ class Reconstructor:
             if found is None:
                 return None
             fits = found[0]
-            misfit = chi2(fitter.predicted(fits, xy), d, s, ROUND_MODEL_ERROR)
+            pred = fitter.predicted(fits, xy)
+            misfit = chi2(pred, d, s, ROUND_MODEL_ERROR)
             if misfit > limit:
                 return None
             if len(fits) == 1:
@@ -614,11 +616,11 @@ class Reconstructor:
             from tactile_contact.round_contact import posterior_contact
 
             fits = [posterior_contact(self._round, xy, d, fits[0], self._count_sigma)]
-        # The test is on the least-squares fit (the least χ² the model reaches), not on the
-        # posterior mean: the mean of a curved valley lies off its floor, and on the load
+            pred = fitter.predicted(fits, xy)
+        # The test above is on the least-squares fit (the least χ² the model reaches), not on
+        # the posterior mean: the mean of a curved valley lies off its floor, and on the load
         # bench's 12 mm sphere it missed the test by a few percent where the fit passed it
         # (χ² 138 against 86, limit 132), sending good frames to the slower grid path.
-        pred = fitter.predicted(fits, xy)
         self._followed = followed
         return self._render(fits), fits, float(np.linalg.norm(pred - d))
 
