@@ -115,16 +115,16 @@ test: setup ros-launch
 	  $(PY) -m pytest -q $(PYTEST_ARGS)
 
 bundles: setup
-	$(PY) -m tactile_contact.build config/hexagon_patch.yaml -o bundles
+	$(PY) -m tactile_contact.offline.build config/hexagon_patch.yaml -o bundles
 
 demo: setup bundles
-	$(ROS_TEST_ENV) $(PY) -m tactile_contact.demo --bundles bundles --out out
+	$(ROS_TEST_ENV) $(PY) -m tactile_contact.ros.demo --bundles bundles --out out
 
 # The recorded session shipped for test/test_bag_replay.py (re-record after changing the
 # reconstruction on purpose).
 test-data: setup bundles
 	rm -rf test/data/hexagon_session
-	$(ROS_TEST_ENV) $(PY) -m tactile_contact.cli bringup --simulate --bundles bundles \
+	$(ROS_TEST_ENV) $(PY) -m tactile_contact.ros.cli bringup --simulate --bundles bundles \
 	  --duration 7 --no-follow --record test/data/hexagon_session \
 	  --record-topics taxels contact contact_truth
 

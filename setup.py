@@ -37,10 +37,10 @@ setup(
     },
     entry_points={
         "console_scripts": [
-            "tactile-contact-build = tactile_contact.build:main",
-            "tactile-contact = tactile_contact.cli:main",
-            "tactile-contact-calibrate = tactile_contact.calibrate:main",
-            "tactile-contact-presses = tactile_contact.calibrate:main_presses",
+            "tactile-contact-build = tactile_contact.offline.build:main",
+            "tactile-contact = tactile_contact.ros.cli:main",
+            "tactile-contact-calibrate = tactile_contact.offline.calibrate:main",
+            "tactile-contact-presses = tactile_contact.offline.calibrate:main_presses",
         ],
     },
 )

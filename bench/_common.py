@@ -1,8 +1,8 @@
 """Helpers shared by bench/tradeoff.py and bench/stability.py (not a library module).
 
 Everything here reuses the package: layouts are the default YAML with a few keys changed,
-bundles come from :func:`tactile_contact.build.build_patch`, reconstructions from
-:class:`tactile_contact.reconstruction.Reconstructor`. SI units throughout (m, Pa, N, F).
+bundles come from :func:`tactile_contact.offline.build.build_patch`, reconstructions from
+:class:`tactile_contact.inverse.reconstruction.Reconstructor`. SI units throughout (m, Pa, N, F).
 """
 
 from __future__ import annotations
@@ -23,9 +23,9 @@ from scipy.spatial import cKDTree
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # the package without installing it
 
-from tactile_contact.bundle import save_bundle  # noqa: E402
-from tactile_contact.layout import PatchLayout, parse_layout  # noqa: E402
-from tactile_contact.reconstruction import Reconstructor  # noqa: E402
+from tactile_contact.inverse.reconstruction import Reconstructor  # noqa: E402
+from tactile_contact.model.layout import PatchLayout, parse_layout  # noqa: E402
+from tactile_contact.offline.bundle import save_bundle  # noqa: E402
 
 #: The default patch document (config/hexagon_patch.yaml), as loaded from YAML.
 BASE_DOC: dict[str, Any] = yaml.safe_load((ROOT / "config" / "hexagon_patch.yaml").read_text())

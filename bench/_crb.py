@@ -1,6 +1,6 @@
 """Truth presses with their Jacobians, and the Cramér–Rao bound (helper of the issue-16 benches).
 
-:class:`Truth` reproduces :class:`tactile_contact.forward.ForwardModel` exactly (the same fine
+:class:`Truth` reproduces :class:`tactile_contact.model.forward.ForwardModel` exactly (the same fine
 cells, centred on the contact, of edge min(fine_cell, a/8); the same 8 × 24-point electrode
 quadrature; the Love kernel) but keeps the kernel from the fine cells to the taxels: every
 force of a press that shares the cell size (a flat punch at any force, a sphere at the forces
@@ -27,10 +27,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from tactile_contact.elastic import love_matrix
-from tactile_contact.forward import ForwardModel
-from tactile_contact.grids import disc_quadrature
-from tactile_contact.indenters import Indenter
+from tactile_contact.model.elastic import love_matrix
+from tactile_contact.model.forward import ForwardModel
+from tactile_contact.model.grids import disc_quadrature
+from tactile_contact.model.indenters import Indenter
 
 #: Parameters of the Jacobian's columns, in order.
 PARAMS = ("x", "y", "force", "size")

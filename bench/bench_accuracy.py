@@ -1,6 +1,7 @@
 """Accuracy of the reconstruction variants on synthetic indentations (docs/reconstruction.md).
 
-Ground truth: tactile_contact.forward (exact cell-averaged Hertz / flat-punch pressure on 0.25 mm
+Ground truth: tactile_contact.model.forward (exact cell-averaged Hertz / flat-punch pressure on
+0.25 mm
 cells, Love kernel, mean over each 2 mm electrode, exact capacitance of the deformed plate), then
 Gaussian noise of ``--noise`` 8-bit counts and 8-bit quantisation. Indenters: the paper's 12 mm
 and 6 mm half-spheres, 12 mm and 3 mm flat cylinders; positions over a taxel, between two,
@@ -28,11 +29,11 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tactile_contact.build import build_layout  # noqa: E402
-from tactile_contact.forward import ForwardModel  # noqa: E402
-from tactile_contact.indenters import FlatPunch, HertzSphere  # noqa: E402
-from tactile_contact.reconstruction import Reconstructor  # noqa: E402
-from tactile_contact.sensor import value_count_farad  # noqa: E402
+from tactile_contact.inverse.reconstruction import Reconstructor  # noqa: E402
+from tactile_contact.model.forward import ForwardModel  # noqa: E402
+from tactile_contact.model.indenters import FlatPunch, HertzSphere  # noqa: E402
+from tactile_contact.model.sensor import value_count_farad  # noqa: E402
+from tactile_contact.offline.build import build_layout  # noqa: E402
 
 INDENTERS = {
     "sphere 12 mm": HertzSphere(6e-3),

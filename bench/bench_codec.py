@@ -18,9 +18,9 @@ import uuid
 import can
 import numpy as np
 
-from tactile_contact.assembler import PeriodAssembler
-from tactile_contact.baseline import BaselineTracker
-from tactile_contact.codec import decode_frame, reading_messages
+from tactile_contact.canbus.assembler import PeriodAssembler
+from tactile_contact.canbus.baseline import BaselineTracker
+from tactile_contact.canbus.codec import decode_frame, reading_messages
 
 TRIANGLES = 16
 RATE_HZ = 100.0
@@ -120,8 +120,8 @@ def main() -> None:
 
     # The whole ROS-free data path (what the node calls per message): assemble, gather the
     # patch, baseline, publication arrays; one patch of the 16 triangles.
-    from tactile_contact.layout import parse_layout
-    from tactile_contact.stream import SkinStream
+    from tactile_contact.canbus.stream import SkinStream
+    from tactile_contact.model.layout import parse_layout
 
     patch = parse_layout(
         {

@@ -28,8 +28,8 @@ import can
 import numpy as np
 import yaml
 
-from tactile_contact import assembler, codec
-from tactile_contact.layout import load_layout
+from tactile_contact.canbus import assembler, codec
+from tactile_contact.model.layout import load_layout
 
 N_TRIANGLES = 16
 RATE_HZ = 100.0
@@ -72,7 +72,7 @@ def thread_cpu_s(tid: int) -> float:
 
 
 def offline(path: Path, periods: int) -> dict[str, float]:
-    from tactile_contact.stream import SkinStream
+    from tactile_contact.canbus.stream import SkinStream
 
     rng = np.random.default_rng(0)
     frames = [m for k in range(periods) for m in period_frames(k, rng, 0.0)]
@@ -159,7 +159,7 @@ def driver_node(seconds: float, path: Path) -> dict[str, float]:
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from tactile_contact.nodes.skin_driver import SkinDriver
+    from tactile_contact.ros.skin_driver import SkinDriver
 
     ctx = Context()
     rclpy.init(context=ctx)

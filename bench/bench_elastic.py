@@ -20,7 +20,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from tactile_contact.elastic import boussinesq_matrix, love_matrix, regular_grid_operator
+from tactile_contact.model.elastic import boussinesq_matrix, love_matrix, regular_grid_operator
 
 PITCH, H, E = 1e-3, 2e-3, 2.1e5
 

@@ -8,7 +8,7 @@ Idle frames of the default patch, counted when ``Reconstructor`` reports ``in_co
 * ``8-bit, tracked baseline``: each taxel rests at a random fraction u ∈ [0, 1) of a count
   (fixed per simulated skin; a new skin every ``--skin-frames``), the module rounds u + noise,
   and the baseline is what the driver's tracker keeps: the mean of the first 20 readings, then
-  an exponential filter with τ = 20 s at 50 Hz (tactile_contact.baseline defaults), so that
+  an exponential filter with τ = 20 s at 50 Hz (tactile_contact.canbus.baseline defaults), so that
   readings are the module value minus a fractional baseline. A taxel resting near half a count
   flips between two values: up to 0.5 count RMS, more than the one count/√6 the sensor model
   assumes. Through ``solve`` without and with a per-taxel noise level passed in (RMS of the
@@ -50,12 +50,12 @@ from bench_robust import CLEAR, LAYOUT, Layout, _seed, clear_of, readings, test_
 from bench_speed import assumed_noise  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
-from tactile_contact.build import build_layout  # noqa: E402
-from tactile_contact.reconstruction import Reconstructor  # noqa: E402
+from tactile_contact.inverse.reconstruction import Reconstructor  # noqa: E402
+from tactile_contact.offline.build import build_layout  # noqa: E402
 
 PER_HOUR = 3600 * 50
 COUNT_NOISE = 0.15
-CALIBRATION_SAMPLES = 20  # tactile_contact.baseline.BaselineConfig defaults
+CALIBRATION_SAMPLES = 20  # tactile_contact.canbus.baseline.BaselineConfig defaults
 DRIFT_TAU_S = 20.0
 NOISE_FRAMES = 500  # frames the noise level is learnt from
 CHUNK = 20_000

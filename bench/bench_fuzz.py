@@ -1,7 +1,7 @@
 """Fuzzed CAN traffic through the real skin_driver node: the figures of issue 17.
 
 A simulated hexagon patch (6 modules, 50 Hz) on a python-can virtual bus, with garbage frames
-of every kind mixed in (:mod:`tactile_contact.can_fuzz`: random ids, lengths 0–8 and CAN FD
+of every kind mixed in (:mod:`tactile_contact.canbus.fuzz`: random ids, lengths 0–8 and CAN FD
 lengths up to 64, oversized classic frames, bad frame types, unknown modules, remote,
 extended-id and error frames, duplicated and out-of-order halves). The driver runs with
 ``bus_filter`` off, so every frame reaches it. Printed and checked (exit 1 if any fails):
@@ -28,7 +28,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tactile_contact.can_fuzz import ODD_KINDS, REJECTED_KINDS, hostile_batches  # noqa: E402
+from tactile_contact.canbus.fuzz import ODD_KINDS, REJECTED_KINDS, hostile_batches  # noqa: E402
 
 LAYOUT = ROOT / "config" / "hexagon_patch.yaml"
 PERIOD_S = 0.02
@@ -50,10 +50,10 @@ def main() -> int:
     from rclpy.parameter import Parameter
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-    from tactile_contact.layout import load_layout
+    from tactile_contact.model.layout import load_layout
     from tactile_contact.msg import TaxelArray
-    from tactile_contact.nodes.skin_driver import SkinDriver
-    from tactile_contact.simulator import simulator_for_patch
+    from tactile_contact.ros.skin_driver import SkinDriver
+    from tactile_contact.sim.simulator import simulator_for_patch
 
     patch = load_layout(LAYOUT).patches[0]
     served = [(m.board, m.triangle) for m in patch.modules]

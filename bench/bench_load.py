@@ -65,10 +65,10 @@ def precompute(layout: Path, n: int, seconds: float, pressed: int) -> list[list[
     """Frames of every patch per period ([period][patch] → frames), the first ``pressed``
     patches each pressed by its own sliding sphere (4 s sweep after 1 s unloaded, phases
     staggered), the others idle (noise only), computed before timing."""
-    from tactile_contact.indenters import HertzSphere
-    from tactile_contact.layout import load_layout
-    from tactile_contact.nodes.skin_simulator import scenario_indentation
-    from tactile_contact.simulator import simulator_for_patch
+    from tactile_contact.model.indenters import HertzSphere
+    from tactile_contact.model.layout import load_layout
+    from tactile_contact.ros.skin_simulator import scenario_indentation
+    from tactile_contact.sim.simulator import simulator_for_patch
 
     count = int(seconds / (PERIOD_MS * 1e-3))
     per_patch = []
@@ -94,7 +94,7 @@ def driver_process(layout: Path, n: int, channel: str, pressed: int, burst: bool
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from tactile_contact.nodes.skin_driver import SkinDriver
+    from tactile_contact.ros.skin_driver import SkinDriver
 
     frames = precompute(layout, n, 5.0 + 4.0, pressed)  # 1 s unloaded then the sweep, cycled after
     rclpy.init()
@@ -282,7 +282,7 @@ def main() -> int:
         driver_process(Path(layout_), int(n_), channel_, int(k_), burst_ == "1")
         return 0
 
-    from tactile_contact.build import build_layout
+    from tactile_contact.offline.build import build_layout
 
     n = args.patches
     k = n if args.contacts < 0 else min(args.contacts, n)
@@ -357,7 +357,7 @@ def run_phase(
     from rclpy.node import Node
 
     from tactile_contact.msg import ContactState
-    from tactile_contact.nodes.common import SENSOR_QOS
+    from tactile_contact.ros.common import SENSOR_QOS
 
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     # --processes P: the patches dealt round-robin to P reconstruction processes (the node's

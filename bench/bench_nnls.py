@@ -7,7 +7,7 @@ patch (six roboskin12 modules, h = 2 mm, E = 2.1e5 Pa, ν = 0.5):
 - ``square``: K = N = 600 measurement points at the cell centres.
 
 A 12 mm sphere pressing 1 N slides along the patch diagonal in 20 frames; compressions come
-from the independent fine forward model (tactile_contact.forward) plus 1 µm Gaussian noise
+from the independent fine forward model (tactile_contact.model.forward) plus 1 µm Gaussian noise
 (seeded). Every solver minimises ‖A·x − d‖² + λ²‖L·x‖², x ≥ 0 with the same λ = 0.1·‖A‖₂ and
 L = I (and, for the taxel problem, also L = Dirichlet grid Laplacian). scipy's Lawson–Hanson
 runs cold on the stacked system [A; λL] (it has no warm start); ours run warm (from the
@@ -26,11 +26,11 @@ from collections.abc import Callable
 import numpy as np
 import scipy.optimize
 
-from tactile_contact.elastic import love_matrix
-from tactile_contact.forward import ForwardModel
-from tactile_contact.indenters import HertzSphere
-from tactile_contact.modules import ROBOSKIN12, place_channels
-from tactile_contact.solvers import NnlsSolver, SvdInverse, grid_laplacian
+from tactile_contact.inverse.solvers import NnlsSolver, SvdInverse, grid_laplacian
+from tactile_contact.model.elastic import love_matrix
+from tactile_contact.model.forward import ForwardModel
+from tactile_contact.model.indenters import HertzSphere
+from tactile_contact.model.modules import ROBOSKIN12, place_channels
 
 H, E, NU = 2e-3, 2.1e5, 0.5
 HEXAGON_MM = (

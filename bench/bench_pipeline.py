@@ -59,10 +59,10 @@ def multi_patch_layout(n: int, folder: Path) -> Path:
 def precompute_frames(layout: Path, n: int, seconds: float) -> list[list[can.Message]]:
     """Module frames of every patch per period: patch 0 pressed by a sliding 12 mm sphere,
     the others idle. Computed before timing so the load generator costs only the sending."""
-    from tactile_contact.indenters import HertzSphere
-    from tactile_contact.layout import load_layout
-    from tactile_contact.nodes.skin_simulator import scenario_indentation
-    from tactile_contact.simulator import simulator_for_patch
+    from tactile_contact.model.indenters import HertzSphere
+    from tactile_contact.model.layout import load_layout
+    from tactile_contact.ros.skin_simulator import scenario_indentation
+    from tactile_contact.sim.simulator import simulator_for_patch
 
     patches = load_layout(layout).patches
     count = int(seconds / (PERIOD_MS * 1e-3))
@@ -134,7 +134,7 @@ def run_publish_only(n: int, seconds: float) -> float:
     from rclpy.node import Node
 
     from tactile_contact.msg import ContactState, TaxelArray
-    from tactile_contact.nodes.common import SENSOR_QOS
+    from tactile_contact.ros.common import SENSOR_QOS
 
     ctx = Context()
     rclpy.init(context=ctx)
@@ -180,9 +180,9 @@ def run_graph(
     from rclpy.parameter import Parameter
 
     from tactile_contact.msg import ContactState
-    from tactile_contact.nodes.common import SENSOR_QOS
-    from tactile_contact.nodes.contact_reconstruction import ContactReconstructionNode
-    from tactile_contact.nodes.skin_driver import SkinDriver
+    from tactile_contact.ros.common import SENSOR_QOS
+    from tactile_contact.ros.contact_reconstruction import ContactReconstructionNode
+    from tactile_contact.ros.skin_driver import SkinDriver
 
     ctx = Context()
     rclpy.init(context=ctx)
@@ -244,7 +244,7 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=6.0)
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT))
-    from tactile_contact.build import build_layout
+    from tactile_contact.offline.build import build_layout
 
     counts = (1, 6) if args.quick else (1, 6, 24)
     seconds = 3.0 if args.quick else args.seconds

@@ -5,7 +5,7 @@ default", "Accuracy").
 Protocol (the paper's): indenters sphere 12 mm (HertzSphere 6 mm), sphere 6 mm (3 mm),
 cylinder 12 mm (FlatPunch 6 mm), cylinder 3 mm (1.5 mm) × forces 0.2, 0.5, 1, 1.8, 2.5, 3 N ×
 over taxel 3 / between taxels 7 and 11 / at the centroid of 3, 7, 11 of modules 4 and 2
-(144 presses). Truth: tactile_contact.forward.ForwardModel on 0.25 mm cells (reproduced with
+(144 presses). Truth: tactile_contact.model.forward.ForwardModel on 0.25 mm cells (reproduced with
 its Jacobian by bench/_crb.py) with a taxel response of its own:
 
     point           the compression at the taxel centre
@@ -16,11 +16,12 @@ its Jacobian by bench/_crb.py) with a taxel response of its own:
 
 Tiers: ``float``: δ + Gaussian noise of σ = 1 % of the press's largest |δ| per taxel (seeded),
 through ``solve_deflection(δ)``; ``8-bit``: δ → ΔC with the layout's sensor model
-(tactile_contact.sensor.compression_to_delta_c), + 0.15-count Gaussian noise, rounded to
+(tactile_contact.model.sensor.compression_to_delta_c), + 0.15-count Gaussian noise, rounded to
 counts of ``value_count_farad(farad_per_count, shift)``, through ``solve(ΔC)``.
 
 Bundles: ``default``, built from config/hexagon_patch.yaml; ``calibrated``, written by
-``python -m tactile_contact.calibrate LAYOUT PRESSES.npz -o DIR`` from 48 presses of the same
+``python -m tactile_contact.offline.calibrate LAYOUT PRESSES.npz -o DIR`` from 48 presses of the
+same
 truth and tier at other places (random, on the skin, ≥ 2 mm from every test place; random
 indenter of the four, named in ``indenter``; 0.5–3 N; seeded). Without the calibrate command
 the calibrated rows are skipped with a note.
@@ -66,15 +67,15 @@ from _crb import Truth, crb  # noqa: E402
 from bench_accuracy import positions  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
-from tactile_contact.build import build_layout  # noqa: E402
-from tactile_contact.indenters import FlatPunch, HertzSphere  # noqa: E402
-from tactile_contact.layout import load_layout  # noqa: E402
-from tactile_contact.reconstruction import Reconstructor  # noqa: E402
-from tactile_contact.sensor import (  # noqa: E402
+from tactile_contact.inverse.reconstruction import Reconstructor  # noqa: E402
+from tactile_contact.model.indenters import FlatPunch, HertzSphere  # noqa: E402
+from tactile_contact.model.layout import load_layout  # noqa: E402
+from tactile_contact.model.sensor import (  # noqa: E402
     compression_to_delta_c,
     delta_c_to_compression,
     value_count_farad,
 )
+from tactile_contact.offline.build import build_layout  # noqa: E402
 
 LAYOUT = ROOT / "config" / "hexagon_patch.yaml"
 CACHE = ROOT / "out" / "bench-robust-cache"
@@ -336,7 +337,15 @@ def calibrated_bundle(
     npz = tmp / f"presses_{tag}.npz"
     np.savez(npz, deflection=defl, force=cal["f"], position=cal["c"], indenter=cal["ind"])
     out = tmp / f"calibrated_{tag}"
-    cmd = [sys.executable, "-m", "tactile_contact.calibrate", str(LAYOUT), str(npz), "-o", str(out)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "tactile_contact.offline.calibrate",
+        str(LAYOUT),
+        str(npz),
+        "-o",
+        str(out),
+    ]
     t = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=3600)
     secs = time.perf_counter() - t
@@ -389,9 +398,11 @@ def main() -> None:
     default = Reconstructor.from_bundle(tmp / "default" / "hexagon")
     if not np.allclose(default.taxel_xy, lay.xy):
         sys.exit("bundle taxel order differs from the layout's taxel_xy()")
-    have_cal = not args.no_calibrate and importlib.util.find_spec("tactile_contact.calibrate")
+    have_cal = not args.no_calibrate and importlib.util.find_spec(
+        "tactile_contact.offline.calibrate"
+    )
     if not have_cal and not args.no_calibrate:
-        say("NOTE: tactile_contact.calibrate not found: calibrated rows skipped")
+        say("NOTE: tactile_contact.offline.calibrate not found: calibrated rows skipped")
 
     t_sim = time.perf_counter()
     presses = {n: test_presses(lay, n, args.quick) for n in names}

@@ -44,8 +44,8 @@ sys.path.insert(0, str(ROOT / "bench"))
 from bench_robust import LAYOUT, TRUTHS, Layout, _seed, readings, test_presses  # noqa: E402
 from threadpoolctl import threadpool_info, threadpool_limits  # noqa: E402
 
-from tactile_contact.build import build_layout  # noqa: E402
-from tactile_contact.reconstruction import Reconstructor  # noqa: E402
+from tactile_contact.inverse.reconstruction import Reconstructor  # noqa: E402
+from tactile_contact.offline.build import build_layout  # noqa: E402
 
 TARGETS = {"contact p50": 1000.0, "contact p99": 3000.0, "idle p50": 50.0}
 

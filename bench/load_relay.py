@@ -29,9 +29,9 @@ def main(patches: list[str]) -> None:
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     from tactile_contact.msg import ContactState, TaxelArray
-    from tactile_contact.nodes.common import seconds_from_stamp, spin_until_shutdown
-    from tactile_contact.nodes.contact_reconstruction import OUTPUT_QOS, QUIET_EVENTS
-    from tactile_contact.nodes.topics import patch_topic
+    from tactile_contact.ros.common import seconds_from_stamp, spin_until_shutdown
+    from tactile_contact.ros.contact_reconstruction import OUTPUT_QOS, QUIET_EVENTS
+    from tactile_contact.ros.topics import patch_topic
 
     rclpy.init()
     node = Node("contact_relay")

@@ -38,7 +38,8 @@ from _common import ROOT, kappa_estimate, square_grid
 from stability_report import render
 from tradeoff import Config, Pipeline
 
-from tactile_contact.elastic import (
+from tactile_contact.inverse.solvers import SvdInverse
+from tactile_contact.model.elastic import (
     boussinesq_effective,
     boussinesq_matrix,
     love_effective,
@@ -48,9 +49,8 @@ from tactile_contact.elastic import (
     muscari_self,
     regular_grid_operator,
 )
-from tactile_contact.forward import ForwardModel
-from tactile_contact.indenters import FlatPunch, HertzSphere
-from tactile_contact.solvers import SvdInverse
+from tactile_contact.model.forward import ForwardModel
+from tactile_contact.model.indenters import FlatPunch, HertzSphere
 
 H, E, NU = 2e-3, 2.1e5, 0.5
 #: Cell side at which the fitted Ψ(h/z0) = (0.2431x − 0.1814)/x vanishes: x = 0.1814/0.2431,
@@ -252,7 +252,7 @@ def solve(pipe: Pipeline, delta: np.ndarray) -> Any:
     if pipe.nnls is None:
         return r.solve_deflection(delta)
     # _one_pass takes ΔC: invert the sensor model exactly (compression is monotonic).
-    from tactile_contact.sensor import compression_to_delta_c
+    from tactile_contact.model.sensor import compression_to_delta_c
 
     p = r.params
     return pipe.frame(compression_to_delta_c(delta, p["thickness"], p["epsilon_r"], p["area"]))

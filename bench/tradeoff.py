@@ -4,7 +4,7 @@
 
 The paper's protocol in simulation: 12 mm and 6 mm half-spheres, 12 mm and 3 mm flat cylinders
 × over a taxel / between two / between three (two modules) × 0.2, 0.5, 1, 1.8, 2.5, 3 N. The
-truth is the independent fine forward model (:class:`tactile_contact.forward.ForwardModel`:
+truth is the independent fine forward model (:class:`tactile_contact.model.forward.ForwardModel`:
 0.25 mm cells, electrode average, exact capacitance); then noise, 8-bit quantisation, and for
 the ``+offsets`` levels a fixed per-taxel baseline offset of up to ±½ count, as a real driver's
 baseline (a mean of quantised samples) leaves. Noisy levels are repeated with 3 noise seeds.
@@ -44,13 +44,13 @@ from _common import ROOT, interpolation_matrix, load, timed_build, variant
 from bench_accuracy import INDENTERS, iou, positions
 from tradeoff_report import render
 
-from tactile_contact.build import build_patch, forward_matrix, free_inverse, grids_for
-from tactile_contact.forward import ForwardModel
-from tactile_contact.layout import PatchLayout
-from tactile_contact.reconstruction import ContactResult, Reconstructor
-from tactile_contact.sensor import value_count_farad
-from tactile_contact.solvers import NnlsSolver
-from tactile_contact.summary import summarize
+from tactile_contact.inverse.reconstruction import ContactResult, Reconstructor
+from tactile_contact.inverse.solvers import NnlsSolver
+from tactile_contact.inverse.summary import summarize
+from tactile_contact.model.forward import ForwardModel
+from tactile_contact.model.layout import PatchLayout
+from tactile_contact.model.sensor import value_count_farad
+from tactile_contact.offline.build import build_patch, forward_matrix, free_inverse, grids_for
 
 
 @dataclass(frozen=True)

@@ -18,13 +18,13 @@ import numpy as np
 import pytest
 import yaml
 
-from tactile_contact.build import build_patch
-from tactile_contact.bundle import save_bundle
-from tactile_contact.forward import ForwardModel
-from tactile_contact.indenters import FlatPunch, HertzSphere
-from tactile_contact.layout import parse_layout
-from tactile_contact.reconstruction import Reconstructor
-from tactile_contact.sensor import value_count_farad
+from tactile_contact.inverse.reconstruction import Reconstructor
+from tactile_contact.model.forward import ForwardModel
+from tactile_contact.model.indenters import FlatPunch, HertzSphere
+from tactile_contact.model.layout import parse_layout
+from tactile_contact.model.sensor import value_count_farad
+from tactile_contact.offline.build import build_patch
+from tactile_contact.offline.bundle import save_bundle
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = yaml.safe_load((ROOT / "config" / "hexagon_patch.yaml").read_text())
@@ -156,7 +156,7 @@ def test_force_at_3N_and_overall_regression_bounds(default_rows):
 
 
 def test_default_far_better_than_the_grid_solution(default_rows, grid_rows):
-    """The round-contact posterior (tactile_contact.round_contact) against the two-pass NNLS
+    """The round-contact posterior (tactile_contact.inverse.round_contact) against the two-pass NNLS
     field it refines, on the same cases. Measured: 26.2 % against 46.4 % overall, 14.5 %
     against 29.6 % at >= 1 N."""
     ours = np.median([r[3] for r in default_rows])

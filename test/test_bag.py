@@ -35,8 +35,8 @@ def test_record_then_read_with_rosbags_then_replay(
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-    from tactile_contact.bag import BagPlayer, BagRecorder, read_messages
     from tactile_contact.msg import TaxelArray
+    from tactile_contact.ros.bag import BagPlayer, BagRecorder, read_messages
 
     bag = tmp_path / "bag"
     node = Node("bag_test", context=ros_context)
@@ -74,8 +74,8 @@ def test_record_then_read_with_rosbags_then_replay(
 def test_never_overwrites_a_bag(ros_context: object, tmp_path: Path) -> None:
     from rclpy.node import Node
 
-    from tactile_contact.bag import BagError, BagRecorder
     from tactile_contact.msg import TaxelArray
+    from tactile_contact.ros.bag import BagError, BagRecorder
 
     (tmp_path / "bag").mkdir()
     node = Node("bag_test_2", context=ros_context)

@@ -46,8 +46,8 @@ def test_tactile_contact_replay_command(ros_context: object, tmp_path: Path) -> 
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-    from tactile_contact.bag import read_messages
     from tactile_contact.msg import ContactState
+    from tactile_contact.ros.bag import read_messages
 
     env = _user_env()
     built = subprocess.run(

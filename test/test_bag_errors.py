@@ -18,8 +18,8 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.msg import get_types_from_msg
 
-from tactile_contact import cli
-from tactile_contact.bag import BagError, load_raw, read_messages, typestore
+from tactile_contact.ros import cli
+from tactile_contact.ros.bag import BagError, load_raw, read_messages, typestore
 
 pytestmark = pytest.mark.ros  # (the replay command imports rclpy)
 

@@ -30,7 +30,7 @@ def _stamp(header: object) -> int:
 
 
 def test_shipped_bag_is_small_and_complete() -> None:
-    from tactile_contact.bag import read_messages
+    from tactile_contact.ros.bag import read_messages
 
     size = sum(p.stat().st_size for p in BAG.rglob("*") if p.is_file())
     assert size < 400_000, f"shipped bag is {size} bytes"
@@ -44,10 +44,10 @@ def test_replay_reproduces_the_recorded_summaries(ros_context: object, tmp_path:
     from rclpy.parameter import Parameter
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-    from tactile_contact.bag import BagPlayer, read_messages
-    from tactile_contact.build import build_layout
     from tactile_contact.msg import ContactState
-    from tactile_contact.nodes.contact_reconstruction import ContactReconstructionNode
+    from tactile_contact.offline.build import build_layout
+    from tactile_contact.ros.bag import BagPlayer, read_messages
+    from tactile_contact.ros.contact_reconstruction import ContactReconstructionNode
 
     build_layout(LAYOUT, tmp_path)
     recorded = {_stamp(m.header): m for t, _, m in read_messages(BAG, ["/hexagon/contact"])}

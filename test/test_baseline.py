@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tactile_contact.baseline import (
+from tactile_contact.canbus.baseline import (
     STATUS_CONTACT,
     STATUS_DEAD,
     STATUS_DISABLED,
@@ -18,8 +18,8 @@ from tactile_contact.baseline import (
     BaselineTracker,
     status_names,
 )
-from tactile_contact.modules import ROBOSKIN12, place_channels
-from tactile_contact.sensor import counts_to_delta_c
+from tactile_contact.model.modules import ROBOSKIN12, place_channels
+from tactile_contact.model.sensor import counts_to_delta_c
 
 DT = 0.05
 
@@ -245,7 +245,7 @@ def test_slide_then_hold_keeps_the_contact() -> None:
 
 def test_from_layout_patch() -> None:
     try:
-        from tactile_contact.layout import parse_layout
+        from tactile_contact.model.layout import parse_layout
     except ImportError as exc:  # written in parallel by the reconstruction engineer
         pytest.skip(f"layout module not available yet: {exc}")
     layout = parse_layout(

@@ -9,15 +9,15 @@ from pathlib import Path
 
 import yaml
 
-from tactile_contact.bundle import load_bundle
-from tactile_contact.layout import load_layout
+from tactile_contact.model.layout import load_layout
+from tactile_contact.offline.bundle import load_bundle
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "tactile_contact.build", *args],
+        [sys.executable, "-m", "tactile_contact.offline.build", *args],
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -77,7 +77,7 @@ def test_a_bundle_whose_layout_file_changed_is_refused_without_being_told_the_la
     import pytest
 
     from tactile_contact import Reconstructor
-    from tactile_contact.bundle import BundleStaleError
+    from tactile_contact.offline.bundle import BundleStaleError
 
     doc = yaml.safe_load((ROOT / "config" / "robot_skin.yaml").read_text())
     layout = tmp_path / "robot.yaml"
@@ -110,8 +110,8 @@ def test_tikhonov_and_tsvd_parameters_by_a_rule(tmp_path):
     import numpy as np
     import pytest
 
-    from tactile_contact.build import build_patch, representative_reading
-    from tactile_contact.layout import LayoutError, parse_layout
+    from tactile_contact.model.layout import LayoutError, parse_layout
+    from tactile_contact.offline.build import build_patch, representative_reading
 
     doc = yaml.safe_load((ROOT / "config" / "hexagon_patch.yaml").read_text())
     doc["patches"][0]["solver"].update(method="tikhonov", tikhonov="discrepancy", refine="none")

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 import yaml
 
-from tactile_contact.build import build_patch
-from tactile_contact.bundle import (
+from tactile_contact.model.layout import load_layout, parse_layout
+from tactile_contact.offline.build import build_patch
+from tactile_contact.offline.bundle import (
     SCHEMA_VERSION,
     BundleCorruptError,
     BundleError,
@@ -23,7 +24,6 @@ from tactile_contact.bundle import (
     load_bundle,
     save_bundle,
 )
-from tactile_contact.layout import load_layout, parse_layout
 
 ROOT = Path(__file__).resolve().parents[1]
 LAYOUT = ROOT / "config" / "hexagon_patch.yaml"

@@ -1,5 +1,5 @@
 """tactile-contact-calibrate: the fitted taxel response against presses simulated with a
-different one (tactile_contact.forward, independent of the round-contact tables), the bundle
+different one (tactile_contact.model.forward, independent of the round-contact tables), the bundle
 it writes, and its errors on bad files."""
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactile_contact.calibrate import INDENTERS, main, main_presses
-from tactile_contact.forward import ForwardModel
-from tactile_contact.layout import load_layout
-from tactile_contact.reconstruction import Reconstructor
+from tactile_contact.inverse.reconstruction import Reconstructor
+from tactile_contact.model.forward import ForwardModel
+from tactile_contact.model.layout import load_layout
+from tactile_contact.offline.calibrate import INDENTERS, main, main_presses
 
 ROOT = Path(__file__).resolve().parents[1]
 LAYOUT = ROOT / "config" / "hexagon_patch.yaml"

@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tactile_contact.assembler import PeriodAssembler
-from tactile_contact.codec import (
+from tactile_contact.canbus.assembler import PeriodAssembler
+from tactile_contact.canbus.codec import (
     ERROR_I2C,
     ERROR_NOT_CONNECTED,
     FRAME_A,

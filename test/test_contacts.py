@@ -1,20 +1,20 @@
-"""Separate round contacts (tactile_contact.contacts) on readings of the independent fine
-forward simulation (tactile_contact.forward), on a hexagonal 5.5 mm taxel lattice."""
+"""Separate round contacts (tactile_contact.inverse.contacts) on readings of the independent fine
+forward simulation (tactile_contact.model.forward), on a hexagonal 5.5 mm taxel lattice."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from tactile_contact.contacts import (
+from tactile_contact.inverse.contacts import (
     CONTACT_SEPARATION,
     ContactFitter,
     apart,
     dip_between,
 )
-from tactile_contact.forward import ForwardModel
-from tactile_contact.indenters import FlatPunch, HertzSphere
-from tactile_contact.round_contact import RoundFit, round_tables
+from tactile_contact.inverse.round_contact import RoundFit, round_tables
+from tactile_contact.model.forward import ForwardModel
+from tactile_contact.model.indenters import FlatPunch, HertzSphere
 
 H, E, NU, ELECTRODE = 2e-3, 2.1e5, 0.5, 2e-3
 COUNT = 1.0e-5  # one 8-bit count of compression [m], about

@@ -3,7 +3,7 @@
 Each test runs the node in-process (python-can's ``virtual`` bus is in-process only) with a
 listener node on one executor, sends simulated module frames from another thread and checks
 what comes out on ``hexagon/taxels`` and ``/diagnostics``. The frames come from
-:class:`tactile_contact.simulator.SkinSimulator` driven by a smooth analytic bump
+:class:`tactile_contact.sim.simulator.SkinSimulator` driven by a smooth analytic bump
 (:class:`BumpModel`): the driver is under test here, not the elastic physics, and the bump gives
 known ΔC on every taxel without building the fine forward model. Periods are 20 ms.
 """
@@ -21,9 +21,9 @@ import can
 import numpy as np
 import pytest
 
-from tactile_contact.layout import PatchLayout, load_layout
-from tactile_contact.sensor import SensorParams, value_count_farad
-from tactile_contact.simulator import Indentation, PeriodTruth, SimPeriod, SkinSimulator
+from tactile_contact.model.layout import PatchLayout, load_layout
+from tactile_contact.model.sensor import SensorParams, value_count_farad
+from tactile_contact.sim.simulator import Indentation, PeriodTruth, SimPeriod, SkinSimulator
 
 pytestmark = pytest.mark.ros
 
@@ -86,7 +86,7 @@ class Harness:
         from rclpy.qos import QoSProfile, ReliabilityPolicy
 
         from tactile_contact.msg import TaxelArray
-        from tactile_contact.nodes.skin_driver import SkinDriver
+        from tactile_contact.ros.skin_driver import SkinDriver
 
         values = {
             "interface": "virtual",
@@ -247,7 +247,7 @@ def test_delta_c_matches_simulated_truth(harness_factory: Any) -> None:
 
 # -- (2) candump log replayed at recorded pace ------------------------------------------------
 def test_replays_candump_log(harness_factory: Any, tmp_path: Path) -> None:
-    from tactile_contact.simulator import write_log
+    from tactile_contact.sim.simulator import write_log
 
     periods = list(simulator(noise_cdc=1.0, seed=3).periods(press(start_s=0.2, hold_s=0.2), 0.8))
     log = tmp_path / "skin.log"
@@ -392,7 +392,7 @@ def test_out_of_range_parameters_are_rejected(ros_context: Any, name: str, value
     from rclpy.exceptions import InvalidParameterValueException
     from rclpy.parameter import Parameter
 
-    from tactile_contact.nodes.skin_driver import SkinDriver
+    from tactile_contact.ros.skin_driver import SkinDriver
 
     with pytest.raises(InvalidParameterValueException, match=name):
         SkinDriver(
@@ -424,7 +424,7 @@ def test_configure_reports_failure_and_stays_unconfigured(
 ) -> None:
     from rclpy.parameter import Parameter
 
-    from tactile_contact.nodes.skin_driver import SkinDriver
+    from tactile_contact.ros.skin_driver import SkinDriver
 
     params = {"layout": str(LAYOUT), **overrides}  # autostart: configure runs in the constructor
     node = SkinDriver(
@@ -460,7 +460,7 @@ def test_config_yaml_loads_as_params_file_with_the_declared_defaults(
     import yaml
     from rclpy.parameter import Parameter
 
-    module = importlib.import_module(f"tactile_contact.nodes.{node}")
+    module = importlib.import_module(f"tactile_contact.ros.{node}")
     path = LAYOUT.parent / f"{node}.yaml"
     values = yaml.safe_load(path.read_text())[node]["ros__parameters"]
     declared = {name: default for name, default, _, _ in module.PARAMETERS}

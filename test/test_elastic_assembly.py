@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tactile_contact.elastic import (
+from tactile_contact.model.elastic import (
     boussinesq_block_effective,
     boussinesq_block_matrix,
     boussinesq_effective,

@@ -12,7 +12,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy import integrate
 
-from tactile_contact.elastic import (
+from tactile_contact.model.elastic import (
     boussinesq_block,
     boussinesq_block_effective,
     boussinesq_effective,

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import integrate
 
-from tactile_contact.elastic import (
+from tactile_contact.model.elastic import (
     boussinesq_effective,
     boussinesq_uz,
     love_effective,

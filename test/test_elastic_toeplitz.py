@@ -8,7 +8,7 @@ import scipy.sparse.linalg as spla
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tactile_contact.elastic import (
+from tactile_contact.model.elastic import (
     RegularGridOperator,
     boussinesq_matrix,
     love_matrix,

@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 import yaml
 
-import tactile_contact.contacts as contacts
-from tactile_contact.build import build_patch
-from tactile_contact.bundle import save_bundle
-from tactile_contact.forward import ForwardModel
-from tactile_contact.indenters import FlatPunch, HertzSphere
-from tactile_contact.layout import parse_layout
-from tactile_contact.reconstruction import Reconstructor
+import tactile_contact.inverse.contacts as contacts
+from tactile_contact.inverse.reconstruction import Reconstructor
+from tactile_contact.model.forward import ForwardModel
+from tactile_contact.model.indenters import FlatPunch, HertzSphere
+from tactile_contact.model.layout import parse_layout
+from tactile_contact.offline.build import build_patch
+from tactile_contact.offline.bundle import save_bundle
 
 ROOT = Path(__file__).resolve().parents[1]
 

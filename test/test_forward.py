@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactile_contact.elastic import boussinesq_effective
-from tactile_contact.forward import ForwardModel
-from tactile_contact.indenters import FlatPunch, HertzSphere
-from tactile_contact.layout import load_layout
-from tactile_contact.sensor import delta_c_to_compression
+from tactile_contact.model.elastic import boussinesq_effective
+from tactile_contact.model.forward import ForwardModel
+from tactile_contact.model.indenters import FlatPunch, HertzSphere
+from tactile_contact.model.layout import load_layout
+from tactile_contact.model.sensor import delta_c_to_compression
 
 ROOT = Path(__file__).resolve().parents[1]
 XY = load_layout(ROOT / "config" / "hexagon_patch.yaml").patches[0].taxel_xy()

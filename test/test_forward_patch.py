@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactile_contact.forward import ForwardModel, PatchForwardModel
-from tactile_contact.indenters import FlatPunch, HertzSphere
-from tactile_contact.layout import load_layout
+from tactile_contact.model.forward import ForwardModel, PatchForwardModel
+from tactile_contact.model.indenters import FlatPunch, HertzSphere
+from tactile_contact.model.layout import load_layout
 
 PATCH = load_layout(Path(__file__).parents[1] / "config" / "hexagon_patch.yaml").patches[0]
 

@@ -14,11 +14,11 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tactile_contact.assembler import PeriodAssembler
-from tactile_contact.can_fuzz import ODD_KINDS, REJECTED_KINDS, hostile_batches
-from tactile_contact.codec import reading_messages
-from tactile_contact.layout import load_layout
-from tactile_contact.stream import SkinStream
+from tactile_contact.canbus.assembler import PeriodAssembler
+from tactile_contact.canbus.codec import reading_messages
+from tactile_contact.canbus.fuzz import ODD_KINDS, REJECTED_KINDS, hostile_batches
+from tactile_contact.canbus.stream import SkinStream
+from tactile_contact.model.layout import load_layout
 
 LAYOUT = Path(__file__).resolve().parents[1] / "config" / "hexagon_patch.yaml"
 PERIOD_S = 0.02

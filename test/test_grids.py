@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tactile_contact.grids import (
+from tactile_contact.model.grids import (
     Grid,
     disc_quadrature,
     distance_to_hull,

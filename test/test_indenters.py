@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.integrate import dblquad, quad
 
-from tactile_contact.grids import Grid
-from tactile_contact.indenters import FlatPunch, HertzSphere, effective_modulus
+from tactile_contact.model.grids import Grid
+from tactile_contact.model.indenters import FlatPunch, HertzSphere, effective_modulus
 
 E, NU = 2.1e5, 0.5
 

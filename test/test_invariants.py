@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 import yaml
 
-from tactile_contact.build import build_patch
-from tactile_contact.bundle import save_bundle
-from tactile_contact.elastic import love_matrix
-from tactile_contact.forward import ForwardModel
-from tactile_contact.indenters import HertzSphere
-from tactile_contact.layout import parse_layout
-from tactile_contact.reconstruction import Reconstructor
-from tactile_contact.solvers import SvdInverse
+from tactile_contact.inverse.reconstruction import Reconstructor
+from tactile_contact.inverse.solvers import SvdInverse
+from tactile_contact.model.elastic import love_matrix
+from tactile_contact.model.forward import ForwardModel
+from tactile_contact.model.indenters import HertzSphere
+from tactile_contact.model.layout import parse_layout
+from tactile_contact.offline.build import build_patch
+from tactile_contact.offline.bundle import save_bundle
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = yaml.safe_load((ROOT / "config" / "hexagon_patch.yaml").read_text())

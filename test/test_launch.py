@@ -22,12 +22,12 @@ LAUNCH = ROOT / "launch" / "skin.launch.py"
 # Parameters every rclpy node declares by itself.
 RCLPY_BUILTIN = {"use_sim_time", "start_type_description_service"}
 NODE_CLASSES = {
-    "skin_driver": ("tactile_contact.nodes.skin_driver", "SkinDriver"),
+    "skin_driver": ("tactile_contact.ros.skin_driver", "SkinDriver"),
     "contact_reconstruction": (
-        "tactile_contact.nodes.contact_reconstruction",
+        "tactile_contact.ros.contact_reconstruction",
         "ContactReconstructionNode",
     ),
-    "skin_simulator": ("tactile_contact.nodes.skin_simulator", "SkinSimulatorNode"),
+    "skin_simulator": ("tactile_contact.ros.skin_simulator", "SkinSimulatorNode"),
 }
 
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
-from tactile_contact.layout import LayoutError, load_layout, parse_layout
-from tactile_contact.modules import place_channels, split_taxel_id
+from tactile_contact.model.layout import LayoutError, load_layout, parse_layout
+from tactile_contact.model.modules import place_channels, split_taxel_id
 
 ROOT = Path(__file__).resolve().parents[1]
 HEXAGON = ROOT / "config" / "hexagon_patch.yaml"

@@ -28,7 +28,7 @@ import can
 import pytest
 from can.interfaces import virtual
 
-from tactile_contact.simulator import simulator_for_patch
+from tactile_contact.sim.simulator import simulator_for_patch
 
 pytestmark = pytest.mark.ros
 
@@ -40,7 +40,7 @@ CYCLES = 20
 
 @pytest.fixture(scope="module")
 def bundles(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from tactile_contact.build import build_layout
+    from tactile_contact.offline.build import build_layout
 
     out = tmp_path_factory.mktemp("bundles")
     build_layout(LAYOUT, out)
@@ -67,7 +67,7 @@ class Feeder:
     """Simulated skin frames on a virtual channel, from a thread, until stopped."""
 
     def __init__(self, channel: str) -> None:
-        from tactile_contact.layout import load_layout
+        from tactile_contact.model.layout import load_layout
 
         self.sim = simulator_for_patch(load_layout(LAYOUT).patches[0], period_s=0.02)
         self.bus = can.Bus(interface="virtual", channel=channel)
@@ -92,19 +92,19 @@ def _make(name: str, context: Any, channel: str, bundles: Path) -> Any:
     from rclpy.parameter import Parameter
 
     if name == "skin_driver":
-        from tactile_contact.nodes.skin_driver import SkinDriver
+        from tactile_contact.ros.skin_driver import SkinDriver
 
         params = {"interface": "virtual", "channel": channel, "layout": str(LAYOUT)}
         params |= {"diagnostics_period_s": 0.1, "period_ms": 20, "calibration_samples": 2}
         cls: Any = SkinDriver
     elif name == "skin_simulator":
-        from tactile_contact.nodes.skin_simulator import SkinSimulatorNode
+        from tactile_contact.ros.skin_simulator import SkinSimulatorNode
 
         params = {"interface": "virtual", "channel": channel, "layout": str(LAYOUT)}
         params |= {"period_ms": 20}
         cls = SkinSimulatorNode
     else:
-        from tactile_contact.nodes.contact_reconstruction import ContactReconstructionNode
+        from tactile_contact.ros.contact_reconstruction import ContactReconstructionNode
 
         params = {"bundles_dir": str(bundles), "diagnostics_period": 0.1}
         cls = ContactReconstructionNode
@@ -118,7 +118,7 @@ def _taxel_source(context: Any) -> tuple[Any, Any]:
     import numpy as np
     from rclpy.node import Node
 
-    from tactile_contact.layout import load_layout
+    from tactile_contact.model.layout import load_layout
     from tactile_contact.msg import TaxelArray
 
     node = Node("taxel_source", context=context)
@@ -146,7 +146,7 @@ def test_node_starts_and_stops_20_times_cleanly(
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.experimental import EventsExecutor
 
-    from tactile_contact.nodes.common import spin_until_shutdown
+    from tactile_contact.ros.common import spin_until_shutdown
 
     channel = f"lifecycle-{name}"
     feeder = Feeder(channel) if name == "skin_driver" else None
@@ -322,9 +322,9 @@ def test_sigint_during_start_up_and_while_running_is_clean(name: str, bundles: P
 _INTERRUPTED_START = """
 import sys, threading
 import rclpy
-from tactile_contact.nodes import common
-from tactile_contact.nodes.skin_driver import SkinDriver
-from tactile_contact.nodes.skin_simulator import SkinSimulatorNode
+from tactile_contact.ros import common
+from tactile_contact.ros.skin_driver import SkinDriver
+from tactile_contact.ros.skin_simulator import SkinSimulatorNode
 
 cls = {"skin_driver": SkinDriver, "skin_simulator": SkinSimulatorNode}[sys.argv[1]]
 

@@ -21,14 +21,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.sparse.linalg import eigsh
 
-from tactile_contact.build import build_patch, free_inverse
-from tactile_contact.bundle import save_bundle
-from tactile_contact.elastic import boussinesq_matrix, love_matrix, regular_grid_operator
-from tactile_contact.forward import ForwardModel
-from tactile_contact.indenters import FlatPunch, HertzSphere
-from tactile_contact.layout import parse_layout
-from tactile_contact.reconstruction import Reconstructor
-from tactile_contact.sensor import rest_capacitance
+from tactile_contact.inverse.reconstruction import Reconstructor
+from tactile_contact.model.elastic import boussinesq_matrix, love_matrix, regular_grid_operator
+from tactile_contact.model.forward import ForwardModel
+from tactile_contact.model.indenters import FlatPunch, HertzSphere
+from tactile_contact.model.layout import parse_layout
+from tactile_contact.model.sensor import rest_capacitance
+from tactile_contact.offline.build import build_patch, free_inverse
+from tactile_contact.offline.bundle import save_bundle
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = yaml.safe_load((ROOT / "config" / "hexagon_patch.yaml").read_text())

@@ -42,9 +42,9 @@ README_TYPES = {
 
 
 def _node_class(node: str) -> type:
-    from tactile_contact.nodes.contact_reconstruction import ContactReconstructionNode
-    from tactile_contact.nodes.skin_driver import SkinDriver
-    from tactile_contact.nodes.skin_simulator import SkinSimulatorNode
+    from tactile_contact.ros.contact_reconstruction import ContactReconstructionNode
+    from tactile_contact.ros.skin_driver import SkinDriver
+    from tactile_contact.ros.skin_simulator import SkinSimulatorNode
 
     return {
         "skin_driver": SkinDriver,
@@ -62,7 +62,7 @@ def _safe(node: str, bundles: Path) -> dict[str, object]:
 
 @pytest.fixture(scope="module")
 def bundles(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from tactile_contact.build import build_layout
+    from tactile_contact.offline.build import build_layout
 
     out = tmp_path_factory.mktemp("bundles")
     build_layout(ROOT / "config" / "hexagon_patch.yaml", out, jobs=1)

@@ -18,7 +18,7 @@ PERIOD_MS = 50
 
 @pytest.fixture(scope="module")
 def bundles(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from tactile_contact.build import build_layout
+    from tactile_contact.offline.build import build_layout
 
     out = tmp_path_factory.mktemp("bundles")
     build_layout(LAYOUT, out)
@@ -26,8 +26,8 @@ def bundles(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def run_press(context: object, bundles: Path, seconds: float) -> object:
-    from tactile_contact.demo import Observed, observer_node
-    from tactile_contact.nodes.bringup import GraphConfig, running_graph
+    from tactile_contact.ros.bringup import GraphConfig, running_graph
+    from tactile_contact.ros.demo import Observed, observer_node
 
     seen = Observed()
     config = GraphConfig(
@@ -69,7 +69,7 @@ def run_press(context: object, bundles: Path, seconds: float) -> object:
 def test_every_frame_gets_all_outputs_and_the_force_is_right(
     ros_context: object, bundles: Path
 ) -> None:
-    from tactile_contact.demo import match
+    from tactile_contact.ros.demo import match
 
     seen = run_press(ros_context, bundles, seconds=3.0)
     taxel_stamps = set(seen.taxels)

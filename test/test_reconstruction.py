@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 import yaml
 
-from tactile_contact.build import build_patch
-from tactile_contact.bundle import BundleStaleError, save_bundle
-from tactile_contact.elastic import love_matrix
-from tactile_contact.forward import ForwardModel
-from tactile_contact.grids import disc_quadrature
-from tactile_contact.indenters import HertzSphere
-from tactile_contact.layout import load_layout, parse_layout
-from tactile_contact.reconstruction import ContactResult, Reconstructor
-from tactile_contact.sensor import compression_to_delta_c, delta_c_to_compression
+from tactile_contact.inverse.reconstruction import ContactResult, Reconstructor
+from tactile_contact.model.elastic import love_matrix
+from tactile_contact.model.forward import ForwardModel
+from tactile_contact.model.grids import disc_quadrature
+from tactile_contact.model.indenters import HertzSphere
+from tactile_contact.model.layout import load_layout, parse_layout
+from tactile_contact.model.sensor import compression_to_delta_c, delta_c_to_compression
+from tactile_contact.offline.build import build_patch
+from tactile_contact.offline.bundle import BundleStaleError, save_bundle
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = yaml.safe_load((ROOT / "config" / "hexagon_patch.yaml").read_text())
@@ -81,8 +81,8 @@ def test_forward_matrix_averages_the_kernel_over_the_electrode(default):
 def test_boussinesq_bundle_follows_its_model_throughout(tmp_path_factory, default):
     """C, the output deflection operator and the round-contact tables of a ``boussinesq``
     patch all come from the Boussinesq–Cerruti kernel (point force p·A per cell)."""
-    from tactile_contact.elastic import boussinesq_matrix
-    from tactile_contact.round_contact import round_tables
+    from tactile_contact.inverse.round_contact import round_tables
+    from tactile_contact.model.elastic import boussinesq_matrix
 
     path, patch = _bundle(
         tmp_path_factory, "bc", model={"kind": "boussinesq", "taxel_average": False}
@@ -229,7 +229,7 @@ def test_invalid_taxels_are_ignored(default, indentation):
 def test_flickering_taxels_keep_the_solver_cache_bounded(tmp_path_factory, indentation):
     """A different taxel out in every frame: the operators kept per set of valid taxels stay
     at SOLVER_CACHE_SIZE, and a set met again after eviction gives the same result."""
-    from tactile_contact.reconstruction import SOLVER_CACHE_SIZE
+    from tactile_contact.inverse.reconstruction import SOLVER_CACHE_SIZE
 
     path, patch = _bundle(tmp_path_factory, "flicker")
     r = Reconstructor.from_bundle(path, patch)

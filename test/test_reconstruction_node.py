@@ -21,7 +21,7 @@ LAYOUT = ROOT / "config" / "hexagon_patch.yaml"
 
 @pytest.fixture(scope="module")
 def bundles(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from tactile_contact.build import build_layout
+    from tactile_contact.offline.build import build_layout
 
     out = tmp_path_factory.mktemp("bundles")
     build_layout(LAYOUT, out)
@@ -30,9 +30,9 @@ def bundles(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _delta_c(force: float, center: tuple[float, float]) -> np.ndarray:
     """ΔC [F] per taxel of a 12 mm sphere, from the independent fine forward model."""
-    from tactile_contact.forward import ForwardModel
-    from tactile_contact.indenters import HertzSphere
-    from tactile_contact.layout import load_layout
+    from tactile_contact.model.forward import ForwardModel
+    from tactile_contact.model.indenters import HertzSphere
+    from tactile_contact.model.layout import load_layout
 
     patch = load_layout(LAYOUT).patches[0]
     e, s = patch.elastomer, patch.sensor
@@ -40,7 +40,7 @@ def _delta_c(force: float, center: tuple[float, float]) -> np.ndarray:
         patch.taxel_xy(), e.thickness, e.young, e.poisson, taxel_radius=s.taxel_radius
     )
     delta = model.compression(HertzSphere(radius=6e-3), force, center)
-    from tactile_contact.sensor import compression_to_delta_c
+    from tactile_contact.model.sensor import compression_to_delta_c
 
     return compression_to_delta_c(delta, e.thickness, s.epsilon_r, s.area)
 
@@ -54,9 +54,9 @@ class Rig:
         from rclpy.parameter import Parameter
         from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-        from tactile_contact.layout import load_layout
+        from tactile_contact.model.layout import load_layout
         from tactile_contact.msg import ContactState, TaxelArray
-        from tactile_contact.nodes.contact_reconstruction import ContactReconstructionNode
+        from tactile_contact.ros.contact_reconstruction import ContactReconstructionNode
 
         overrides = [Parameter("bundles_dir", value=str(bundles_dir))]
         overrides += [Parameter(k, value=v) for k, v in params.items()]
@@ -250,7 +250,7 @@ def test_a_broken_bundle_is_refused_and_the_others_still_served(
 ) -> None:
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from tactile_contact.nodes.common import DIAGNOSTICS_QOS
+    from tactile_contact.ros.common import DIAGNOSTICS_QOS
 
     shutil.copytree(bundles / "hexagon", tmp_path / "hexagon")
     shutil.copytree(bundles / "hexagon", tmp_path / "broken")
@@ -291,10 +291,10 @@ class TwoPatchRig:
         from rclpy.parameter import Parameter
         from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-        from tactile_contact.layout import load_layout
+        from tactile_contact.model.layout import load_layout
         from tactile_contact.msg import ContactState, TaxelArray
-        from tactile_contact.nodes.common import DIAGNOSTICS_QOS
-        from tactile_contact.nodes.contact_reconstruction import ContactReconstructionNode
+        from tactile_contact.ros.common import DIAGNOSTICS_QOS
+        from tactile_contact.ros.contact_reconstruction import ContactReconstructionNode
 
         overrides = [
             Parameter("bundles_dir", value=str(bundles_dir)),
@@ -358,7 +358,7 @@ class TwoPatchRig:
 
 
 def _on_taxel(i: int) -> tuple[float, float]:
-    from tactile_contact.layout import load_layout
+    from tactile_contact.model.layout import load_layout
 
     x, y = load_layout(LAYOUT).patches[0].taxel_xy()[i]
     return float(x), float(y)
@@ -457,7 +457,7 @@ _RECON: dict[str, object] = {}
 
 
 def _reconstructor(bundles: Path) -> object:
-    from tactile_contact.nodes.contact_reconstruction import load_reconstructor
+    from tactile_contact.ros.contact_reconstruction import load_reconstructor
 
     if "r" not in _RECON:
         _RECON["r"] = load_reconstructor(bundles / "hexagon")
@@ -496,8 +496,8 @@ def test_any_reading_gives_a_finite_nonnegative_published_summary(
 ) -> None:
     from std_msgs.msg import Header
 
-    from tactile_contact.nodes import convert
-    from tactile_contact.nodes.contact_reconstruction import check_result
+    from tactile_contact.ros import convert
+    from tactile_contact.ros.contact_reconstruction import check_result
 
     recon = _reconstructor(bundles)
     quantum = recon.full_scale / 256.0

@@ -1,4 +1,4 @@
-"""Round-contact fit (tactile_contact.round_contact) against independent references."""
+"""Round-contact fit (tactile_contact.inverse.round_contact) against independent references."""
 
 from __future__ import annotations
 
@@ -11,13 +11,8 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tactile_contact.build import build_patch
-from tactile_contact.bundle import save_bundle
-from tactile_contact.forward import ForwardModel
-from tactile_contact.indenters import FlatPunch, HertzSphere
-from tactile_contact.layout import parse_layout
-from tactile_contact.reconstruction import Reconstructor
-from tactile_contact.round_contact import (
+from tactile_contact.inverse.reconstruction import Reconstructor
+from tactile_contact.inverse.round_contact import (
     FAMILIES,
     RoundFit,
     RoundTables,
@@ -26,7 +21,12 @@ from tactile_contact.round_contact import (
     posterior_contact,
     round_tables,
 )
-from tactile_contact.sensor import value_count_farad
+from tactile_contact.model.forward import ForwardModel
+from tactile_contact.model.indenters import FlatPunch, HertzSphere
+from tactile_contact.model.layout import parse_layout
+from tactile_contact.model.sensor import value_count_farad
+from tactile_contact.offline.build import build_patch
+from tactile_contact.offline.bundle import save_bundle
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = yaml.safe_load((ROOT / "config" / "hexagon_patch.yaml").read_text())
@@ -76,7 +76,7 @@ def test_boussinesq_tables_are_the_dense_point_force_sum(point_tables, family):
     Boussinesq–Cerruti kernel (its Muscari self term included): against the dense
     boussinesq_matrix sum over the same 0.1 mm cells at on-grid distances, and 2-6 % below the
     Love tables under the contact, where the two models' near fields differ."""
-    from tactile_contact.elastic import boussinesq_matrix
+    from tactile_contact.model.elastic import boussinesq_matrix
 
     k, cell = 1, 1e-4
     radius = RADII[k]

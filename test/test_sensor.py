@@ -7,7 +7,7 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from tactile_contact.sensor import (
+from tactile_contact.model.sensor import (
     EPSILON_0,
     SensorParams,
     compression_in_range,

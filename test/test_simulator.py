@@ -11,15 +11,15 @@ import can
 import numpy as np
 import pytest
 
-from tactile_contact.assembler import PeriodAssembler
-from tactile_contact.modules import ROBOSKIN12, place_channels
-from tactile_contact.sensor import (
+from tactile_contact.canbus.assembler import PeriodAssembler
+from tactile_contact.model.modules import ROBOSKIN12, place_channels
+from tactile_contact.model.sensor import (
     SensorParams,
     compression_to_delta_c,
     counts_to_delta_c,
     module_value,
 )
-from tactile_contact.simulator import (
+from tactile_contact.sim.simulator import (
     Indentation,
     SkinSimulator,
     send_realtime,
@@ -173,10 +173,10 @@ def test_argument_validation() -> None:
 
 def test_layout_patch_through_the_forward_model() -> None:
     try:
-        from tactile_contact.elastic import love_matrix  # noqa: F401
-        from tactile_contact.forward import ForwardModel
-        from tactile_contact.indenters import HertzSphere
-        from tactile_contact.layout import load_layout
+        from tactile_contact.model.elastic import love_matrix  # noqa: F401
+        from tactile_contact.model.forward import ForwardModel
+        from tactile_contact.model.indenters import HertzSphere
+        from tactile_contact.model.layout import load_layout
     except ImportError as exc:  # the forward model is being written in parallel
         pytest.skip(f"forward model not available yet: {exc}")
     patch = load_layout(Path(__file__).parents[1] / "config" / "hexagon_patch.yaml").patches[0]
@@ -193,9 +193,9 @@ def test_layout_patch_through_the_forward_model() -> None:
 def test_end_to_end_held_contact_through_log_and_baseline(tmp_path: Path) -> None:
     """Simulator → candump log → SkinStream (assembler, patch gathering, baseline): ΔC matches
     the truth within quantisation, and a 120 s hold is still reported at ≥ 90 %."""
-    from tactile_contact.baseline import STATUS_STALE, BaselineConfig
-    from tactile_contact.layout import parse_layout
-    from tactile_contact.stream import SkinStream
+    from tactile_contact.canbus.baseline import STATUS_STALE, BaselineConfig
+    from tactile_contact.canbus.stream import SkinStream
+    from tactile_contact.model.layout import parse_layout
 
     sim = _sim(seed=11, period_s=0.05, noise_cdc=1.5, rest_spread_cdc=8, drift_cdc_per_s=0.01)
     ind = Indentation.press("sphere", 2.0, tuple(XY[3]), start_s=3.0, ramp_s=0.3, hold_s=120.0)
@@ -234,8 +234,8 @@ def test_end_to_end_held_contact_through_log_and_baseline(tmp_path: Path) -> Non
 
 def test_exact_capacitance_option_through_the_forward_model() -> None:
     try:
-        from tactile_contact.indenters import HertzSphere
-        from tactile_contact.layout import load_layout
+        from tactile_contact.model.indenters import HertzSphere
+        from tactile_contact.model.layout import load_layout
     except ImportError as exc:
         pytest.skip(f"forward model not available yet: {exc}")
     patch = load_layout(Path(__file__).parents[1] / "config" / "hexagon_patch.yaml").patches[0]

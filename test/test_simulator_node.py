@@ -19,7 +19,7 @@ LAYOUT = Path(__file__).resolve().parents[1] / "config" / "hexagon_patch.yaml"
 def make_node(ctx: Any, channel: str, **params: Any) -> Any:
     from rclpy.parameter import Parameter
 
-    from tactile_contact.nodes.skin_simulator import SkinSimulatorNode
+    from tactile_contact.ros.skin_simulator import SkinSimulatorNode
 
     values = {"layout": str(LAYOUT), "interface": "virtual", "channel": channel, **params}
     return SkinSimulatorNode(
@@ -32,8 +32,8 @@ def test_frames_and_truth_follow_the_scenario(ros_context: Any) -> None:
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-    from tactile_contact.assembler import PeriodAssembler
-    from tactile_contact.layout import load_layout
+    from tactile_contact.canbus.assembler import PeriodAssembler
+    from tactile_contact.model.layout import load_layout
     from tactile_contact.msg import ContactState
     from test.rosutil import spin_until
 
@@ -106,9 +106,9 @@ def test_driver_reads_the_simulator_and_stamps_match_the_truth(ros_context: Any)
     from rclpy.parameter import Parameter
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-    from tactile_contact.layout import load_layout
+    from tactile_contact.model.layout import load_layout
     from tactile_contact.msg import ContactState, TaxelArray
-    from tactile_contact.nodes.skin_driver import SkinDriver
+    from tactile_contact.ros.skin_driver import SkinDriver
     from test.rosutil import spin_until
 
     listener = Node("listener", context=ros_context)

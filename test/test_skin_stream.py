@@ -12,11 +12,11 @@ import can
 import numpy as np
 import pytest
 
-from tactile_contact import baseline as bl
-from tactile_contact import codec
-from tactile_contact.layout import load_layout
-from tactile_contact.sensor import value_count_farad
-from tactile_contact.stream import BusErrorPolicy, ReplayBus, SkinStream
+from tactile_contact.canbus import baseline as bl
+from tactile_contact.canbus import codec
+from tactile_contact.canbus.stream import BusErrorPolicy, ReplayBus, SkinStream
+from tactile_contact.model.layout import load_layout
+from tactile_contact.model.sensor import value_count_farad
 
 LAYOUT = Path(__file__).resolve().parents[1] / "config" / "hexagon_patch.yaml"
 P = 0.02  # period [s]
@@ -238,7 +238,7 @@ _MIXED = {
 
 
 def _mixed_patch():  # two ROBOSKIN triangles and an iCub 10-pad one (thermal pads disabled)
-    from tactile_contact.layout import parse_layout
+    from tactile_contact.model.layout import parse_layout
 
     return parse_layout(_MIXED).patches[0]
 
@@ -246,9 +246,9 @@ def _mixed_patch():  # two ROBOSKIN triangles and an iCub 10-pad one (thermal pa
 def test_delta_c_through_a_virtual_bus_matches_the_simulated_truth() -> None:
     import uuid
 
-    from tactile_contact.indenters import HertzSphere
-    from tactile_contact.sensor import SensorParams
-    from tactile_contact.simulator import Indentation, simulator_for_patch
+    from tactile_contact.model.indenters import HertzSphere
+    from tactile_contact.model.sensor import SensorParams
+    from tactile_contact.sim.simulator import Indentation, simulator_for_patch
 
     patch = _mixed_patch()
     sim = simulator_for_patch(patch, seed=4, noise_cdc=1.0, rest_spread_cdc=6, period_s=0.05)
@@ -289,7 +289,7 @@ def test_delta_c_through_a_virtual_bus_matches_the_simulated_truth() -> None:
 def test_silent_module_among_garbage_keeps_the_good_modules_published() -> None:
     import random
 
-    from tactile_contact.simulator import simulator_for_patch
+    from tactile_contact.sim.simulator import simulator_for_patch
 
     patch = _mixed_patch()
     sim = simulator_for_patch(patch, seed=5, period_s=0.05)

@@ -16,9 +16,7 @@ import scipy.optimize
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tactile_contact.elastic import love_matrix
-from tactile_contact.modules import ROBOSKIN12, place_channels
-from tactile_contact.solvers import (
+from tactile_contact.inverse.solvers import (
     CONVERGED,
     MAX_ITER,
     NnlsSolver,
@@ -27,6 +25,8 @@ from tactile_contact.solvers import (
     nnls,
     support_weights,
 )
+from tactile_contact.model.elastic import love_matrix
+from tactile_contact.model.modules import ROBOSKIN12, place_channels
 
 H, E, NU = 2e-3, 2.1e5, 0.5
 
@@ -349,7 +349,7 @@ def test_the_later_bpp_phases_solve_exactly(
 ) -> None:
     """Pivoting cut to one step, so the crossover (FISTA, then pivoting again) or, with that cut
     too, Lawson–Hanson's active-set method must finish the job, to the same tolerance."""
-    import tactile_contact.solvers._kernels as kernels
+    import tactile_contact.inverse.solvers._kernels as kernels
 
     monkeypatch.setattr(kernels, "BPP_STEPS", 1 if phase == "active_set" else 2)
     if phase == "active_set":
@@ -646,8 +646,8 @@ def test_linear_argument_validation() -> None:
 
 # -- priors ---------------------------------------------------------------------------------
 def test_grid_laplacian_matches_the_build_laplacian_and_is_definite() -> None:
-    from tactile_contact.build import laplacian
-    from tactile_contact.grids import Grid
+    from tactile_contact.model.grids import Grid
+    from tactile_contact.offline.build import laplacian
 
     mask = np.ones((5, 6), dtype=bool)
     mask[0, :2] = mask[4, 5] = False

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tactile_contact.grids import Grid
-from tactile_contact.indenters import HertzSphere
-from tactile_contact.summary import summarize
+from tactile_contact.inverse.summary import summarize
+from tactile_contact.model.grids import Grid
+from tactile_contact.model.indenters import HertzSphere
 
 
 def test_hertz_field_summary():

@@ -22,11 +22,11 @@ SCRIPT = textwrap.dedent(
     import json, sys
     import numba
     import numpy as np
-    from tactile_contact import _round_kernels
-    from tactile_contact.forward import ForwardModel
-    from tactile_contact.indenters import FlatPunch, HertzSphere
-    from tactile_contact.reconstruction import Reconstructor
-    from tactile_contact.sensor import value_count_farad
+    from tactile_contact.inverse import _round_kernels
+    from tactile_contact.model.forward import ForwardModel
+    from tactile_contact.model.indenters import FlatPunch, HertzSphere
+    from tactile_contact.inverse.reconstruction import Reconstructor
+    from tactile_contact.model.sensor import value_count_farad
 
     def signatures():
         return {
@@ -69,7 +69,7 @@ SCRIPT = textwrap.dedent(
 
 
 def test_warm_up_compiles_what_the_frames_need(tmp_path: Path) -> None:
-    from tactile_contact.build import build_layout
+    from tactile_contact.offline.build import build_layout
 
     build_layout(ROOT / "config" / "hexagon_patch.yaml", tmp_path)
     out = subprocess.run(

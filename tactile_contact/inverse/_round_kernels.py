@@ -1,0 +1,451 @@
+"""Compiled inner loops of the round-contact fit (numba, cached on disk after the first call).
+
+The radial response tables R[family, k, j] are sampled at log radius t_k = t0 + k·dt and
+distance r_j = j·step [m]; between samples they are interpolated bilinearly in (t, r). The fit
+is a Levenberg–Marquardt least-squares fit of one contact (centre x, y [m], log radius t,
+force F [N]) to whitened readings, restarted from several radii per family: the cost
+landscape of a 2 mm-pitch skin has a valley per profile (a broad punch and a broad sphere read
+alike), and a few starts find the deepest one for a few hundred microseconds of Python.
+Nothing here validates its arguments: :mod:`tactile_contact.inverse.round_contact` does.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+_JIT = {"cache": True, "nogil": True}
+
+
+@numba.njit(**_JIT)
+def _row(table, t0, dt, t):  # pragma: no cover - compiled
+    """(k, w): log radius t lies between table rows k and k + 1, at weight w of row k + 1."""
+    n_a = table.shape[1]
+    u = min(max((t - t0) / dt, 0.0), n_a - 1.0)
+    k = min(int(u), n_a - 2)
+    return k, u - k
+
+
+@numba.njit(**_JIT)
+def _response(table, f, k, wa, dt, step, r):  # pragma: no cover - compiled
+    """(R, ∂R/∂t, ∂R/∂r) of family f between rows k, k + 1 (weight wa) at distance r [m];
+    0 beyond reach."""
+    v = r / step
+    if v > table.shape[2] - 1:
+        return 0.0, 0.0, 0.0
+    j = min(int(v), table.shape[2] - 2)
+    wr = v - j
+    r00 = table[f, k, j]
+    r01 = table[f, k, j + 1]
+    r10 = table[f, k + 1, j]
+    r11 = table[f, k + 1, j + 1]
+    lo = r00 + wr * (r01 - r00)
+    hi = r10 + wr * (r11 - r10)
+    return lo + wa * (hi - lo), (hi - lo) / dt, ((1.0 - wa) * (r01 - r00) + wa * (r11 - r10)) / step
+
+
+@numba.njit(**_JIT)
+def _value(table, f, k, wa, step, r):  # pragma: no cover - compiled
+    """R of family f between rows k, k + 1 (weight wa) at distance r [m]; 0 beyond reach."""
+    v = r / step
+    if v > table.shape[2] - 1:
+        return 0.0
+    j = min(int(v), table.shape[2] - 2)
+    wr = v - j
+    lo = table[f, k, j] + wr * (table[f, k, j + 1] - table[f, k, j])
+    hi = table[f, k + 1, j] + wr * (table[f, k + 1, j + 1] - table[f, k + 1, j])
+    return lo + wa * (hi - lo)
+
+
+@numba.njit(**_JIT)
+def _cost_force(table, f, k, wa, step, xy, d, w2, x, y):  # pragma: no cover - compiled
+    """(weighted cost Σ w²(F·R − d)², F) with F the non-negative least-squares force."""
+    num = 0.0
+    den = 0.0
+    dd = 0.0
+    for i in range(xy.shape[0]):
+        dx = x - xy[i, 0]
+        dy = y - xy[i, 1]
+        val = _value(table, f, k, wa, step, math.sqrt(dx * dx + dy * dy))
+        num += w2[i] * val * d[i]
+        den += w2[i] * val * val
+        dd += w2[i] * d[i] * d[i]
+    if den <= 0.0 or num <= 0.0:
+        return dd, 0.0
+    force = num / den
+    return dd - force * num, force
+
+
+@numba.njit(**_JIT)
+def _damped_step(jtj, jtr, mu, out):  # pragma: no cover - compiled
+    """Solve (JᵀJ + μ·diag JᵀJ)·s = −Jᵀr for s (4 unknowns) by Cholesky into ``out``;
+    False when the damped matrix is not positive definite."""
+    c = np.empty((4, 4))
+    for a in range(4):
+        for b in range(a + 1):
+            s = jtj[a, b]
+            if a == b:
+                s += mu * max(jtj[a, a], 1e-300)
+            for m in range(b):
+                s -= c[a, m] * c[b, m]
+            if a == b:
+                if not s > 0.0:
+                    return False
+                c[a, a] = math.sqrt(s)
+            else:
+                c[a, b] = s / c[b, b]
+    for a in range(4):  # forward: C·y = −Jᵀr
+        s = -jtr[a]
+        for m in range(a):
+            s -= c[a, m] * out[m]
+        out[a] = s / c[a, a]
+    for a in range(3, -1, -1):  # back: Cᵀ·s = y
+        s = out[a]
+        for m in range(a + 1, 4):
+            s -= c[m, a] * out[m]
+        out[a] = s / c[a, a]
+    return True
+
+
+@numba.njit(**_JIT)
+def responses(table, f, t0, dt, step, t, r):  # pragma: no cover - compiled
+    """(N,) R [m/N] of family f at log radius t for distances r (N,) [m]; 0 beyond reach."""
+    k, wa = _row(table, t0, dt, t)
+    out = np.empty(r.shape[0])
+    for i in range(r.shape[0]):
+        out[i] = _value(table, f, k, wa, step, r[i])
+    return out
+
+
+@numba.njit(**_JIT)
+def predict(table, f, t0, dt, step, xy, x, y, t, force):  # pragma: no cover - compiled
+    """(N,) compression [m] that force·R of family f at log radius t, centred at (x, y) [m],
+    makes at the points ``xy`` (N, 2) [m]."""
+    k, wa = _row(table, t0, dt, t)
+    out = np.empty(xy.shape[0])
+    for i in range(xy.shape[0]):
+        dx = x - xy[i, 0]
+        dy = y - xy[i, 1]
+        out[i] = force * _value(table, f, k, wa, step, math.sqrt(dx * dx + dy * dy))
+    return out
+
+
+@numba.njit(**_JIT)
+def lm_fit(table, f, t0, dt, step, xy, d, w2, x, y, t, iterations):  # pragma: no cover
+    """Levenberg–Marquardt from (x, y, t): returns (cost, x, y, t, F).
+
+    Variables x, y [m], t = log radius, F [N]; residuals w_i·(F·R_i − d_i). t is clamped to
+    the table, F to ≥ 0 (a negative force is no contact: the step is then rejected).
+    """
+    t_lo = t0
+    t_hi = t0 + dt * (table.shape[1] - 1)
+    k, wa = _row(table, t0, dt, t)
+    cost, force = _cost_force(table, f, k, wa, step, xy, d, w2, x, y)
+    if force <= 0.0:
+        return cost, x, y, t, 0.0
+    mu = 1e-3
+    jtj = np.empty((4, 4))
+    jtr = np.empty(4)
+    g = np.empty(4)
+    sv = np.empty(4)
+    rel = 1.0
+    for _ in range(iterations):
+        jtj[:] = 0.0
+        jtr[:] = 0.0
+        for i in range(xy.shape[0]):
+            dx = x - xy[i, 0]
+            dy = y - xy[i, 1]
+            r = math.sqrt(dx * dx + dy * dy)
+            val, d_t, d_r = _response(table, f, k, wa, dt, step, r)
+            if r > 1e-12:
+                g[0] = force * d_r * dx / r
+                g[1] = force * d_r * dy / r
+            else:
+                g[0] = 0.0
+                g[1] = 0.0
+            g[2] = force * d_t
+            g[3] = val
+            res = w2[i] * (force * val - d[i])
+            for a in range(4):
+                jtr[a] += g[a] * res
+                wg = w2[i] * g[a]
+                for b in range(a + 1):
+                    jtj[a, b] += wg * g[b]
+        improved = False
+        for _try in range(8):
+            if not _damped_step(jtj, jtr, mu, sv):  # not positive definite: damp harder
+                mu *= 10.0
+                continue
+            nx = x + sv[0]
+            ny = y + sv[1]
+            nt = min(max(t + sv[2], t_lo), t_hi)
+            nf = force + sv[3]
+            if nf <= 0.0:
+                mu *= 4.0
+                continue
+            nk, nwa = _row(table, t0, dt, nt)
+            nc = 0.0
+            for i in range(xy.shape[0]):
+                dx = nx - xy[i, 0]
+                dy = ny - xy[i, 1]
+                e = nf * _value(table, f, nk, nwa, step, math.sqrt(dx * dx + dy * dy)) - d[i]
+                nc += w2[i] * e * e
+            if nc < cost:
+                rel = (cost - nc) / max(cost, 1e-300)
+                x, y, t, force, cost, k, wa = nx, ny, nt, nf, nc, nk, nwa
+                mu = max(mu / 3.0, 1e-9)
+                improved = True
+                break
+            mu *= 4.0
+        if not improved or rel < 1e-10:
+            break
+    return cost, x, y, t, force
+
+
+@numba.njit(**_JIT)
+def _lattice_costs(table, t0, dt, step, xy, d, w2, centres, radius_index):  # pragma: no cover
+    """Weighted cost of every family × tabulated radius ``radius_index`` (R,) × centre (L, 2),
+    the force at its non-negative optimum: (costs (F, R, L), forces (F, R, L)); cost ‖d‖²_w
+    and force 0 where no positive force fits. The tabulated radii's rows are
+    copied distance-major, so that one taxel's look-ups over every radius are contiguous (the
+    innermost loop, which the compiler vectorises), and each centre's taxel distances serve
+    every family and radius."""
+    n_f = table.shape[0]
+    n_k = xy.shape[0]
+    n_j = table.shape[2]
+    n_r = radius_index.shape[0]
+    rows = np.empty((n_f, n_j, n_r))
+    for f in range(n_f):
+        for m in range(n_r):
+            for a in range(n_j):
+                rows[f, a, m] = table[f, radius_index[m], a]
+    dd = 0.0
+    for i in range(n_k):
+        dd += w2[i] * d[i] * d[i]
+    cost = np.empty((n_f, n_r, centres.shape[0]))
+    force = np.empty_like(cost)
+    num = np.empty((n_f, n_r))
+    den = np.empty((n_f, n_r))
+    for c in range(centres.shape[0]):
+        num[:] = 0.0
+        den[:] = 0.0
+        for i in range(n_k):
+            dx = centres[c, 0] - xy[i, 0]
+            dy = centres[c, 1] - xy[i, 1]
+            v = math.sqrt(dx * dx + dy * dy) / step
+            if v > n_j - 1:
+                continue
+            a = min(int(v), n_j - 2)
+            wr = v - a
+            for f in range(n_f):
+                for m in range(n_r):
+                    lo = rows[f, a, m]
+                    val = lo + wr * (rows[f, a + 1, m] - lo)
+                    num[f, m] += w2[i] * val * d[i]
+                    den[f, m] += w2[i] * val * val
+        for f in range(n_f):
+            for m in range(n_r):
+                if den[f, m] <= 0.0 or num[f, m] <= 0.0:
+                    cost[f, m, c] = dd
+                    force[f, m, c] = 0.0
+                else:
+                    force[f, m, c] = num[f, m] / den[f, m]
+                    cost[f, m, c] = dd - num[f, m] / den[f, m] * num[f, m]
+    return cost, force
+
+
+#: Lattice points whose cost exceeds the best by more than this (χ² units) are left out of
+#: the posterior: their weight e^(−Δ/2)·a is below 1e-19 of the best point's (a varies 24-fold
+#: over the radii), so the 6272 points of a lattice cannot add 1e-14 to any sum; evaluating
+#: exp and log for each of them took half the kernel's time.
+NEGLIGIBLE_COST = 90.0
+
+
+@numba.njit(**_JIT)
+def posterior_mean(rows, log_radius, family, step, xy, d, w2, centres):  # pragma: no cover
+    """Posterior over profiles × centres, weights exp(−cost/2)·a where the force is positive
+    (cost: the weighted squared residual at the non-negative optimal force; a: the contact
+    radius): (mass, mean log F, mean x, mean y [m], mean log a, family of most mass); mass
+    0.0 when no force is positive.
+
+    ``rows`` (J, P): the responses of P profiles (:meth:`RoundTables.profile_rows`) at
+    distances j·``step``, distance-major so that one taxel's look-ups over every profile are
+    contiguous (the innermost loop, which the compiler vectorises); ``log_radius`` (P,) and
+    ``family`` (P,) name each profile. ``centres`` (L, 2) [m]."""
+    n_j, n_p = rows.shape
+    n_c = centres.shape[0]
+    dd = 0.0
+    for i in range(xy.shape[0]):
+        dd += w2[i] * d[i] * d[i]
+    cost = np.empty((n_c, n_p))
+    force = np.empty((n_c, n_p))
+    num = np.empty(n_p)
+    den = np.empty(n_p)
+    best = np.inf
+    for c in range(n_c):
+        num[:] = 0.0
+        den[:] = 0.0
+        for i in range(xy.shape[0]):
+            dx = centres[c, 0] - xy[i, 0]
+            dy = centres[c, 1] - xy[i, 1]
+            v = math.sqrt(dx * dx + dy * dy) / step
+            if v > n_j - 1:
+                continue
+            a = min(int(v), n_j - 2)
+            wr = v - a
+            wd = w2[i] * d[i]
+            wi = w2[i]
+            for p in range(n_p):
+                lo = rows[a, p]
+                val = lo + wr * (rows[a + 1, p] - lo)
+                num[p] += wd * val
+                den[p] += wi * val * val
+        for p in range(n_p):
+            if den[p] <= 0.0 or num[p] <= 0.0:
+                force[c, p] = 0.0
+            else:
+                force[c, p] = num[p] / den[p]
+                cost[c, p] = dd - force[c, p] * num[p]
+                if cost[c, p] < best:
+                    best = cost[c, p]
+    if best == np.inf:
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0
+    n_f = 0
+    for p in range(n_p):
+        n_f = max(n_f, family[p] + 1)
+    mass = np.zeros(n_f)
+    log_f = x = y = log_a = 0.0
+    for c in range(n_c):
+        for p in range(n_p):
+            if force[c, p] > 0.0 and cost[c, p] - best < NEGLIGIBLE_COST:
+                w = math.exp(log_radius[p] - 0.5 * (cost[c, p] - best))
+                mass[family[p]] += w
+                log_f += w * math.log(force[c, p])
+                x += w * centres[c, 0]
+                y += w * centres[c, 1]
+                log_a += w * log_radius[p]
+    total = mass.sum()
+    most = 0
+    for f in range(n_f):
+        if mass[f] > mass[most]:
+            most = f
+    return total, log_f / total, x / total, y / total, log_a / total, most
+
+
+@numba.njit(**_JIT)
+def fit_one(  # pragma: no cover - compiled
+    table,
+    t0,
+    dt,
+    step,
+    xy,
+    d,
+    w2,
+    centres,
+    centre_radius_index,
+    radius_index,
+    pre,
+    keep,
+    iterations,
+):
+    """Best single contact: (cost, x, y, t, F, family); F = 0 when none has a positive force.
+
+    Per search start and family, the best of that start's lattice ``centres[s]`` (S, L, 2)
+    over a few radii (``centre_radius_index``) starts a short LM run of ``pre`` iterations
+    from every start radius (tabulated indices ``radius_index``); per start, the ``keep``
+    lowest then run to ``iterations``. Why so many starts: with precise readings each
+    profile's basin is narrow (a 12 mm punch's edge crossing an electrode moves the readings
+    by many σ per 0.1 mm), so no lattice a frame can afford lands in it, while a short LM run
+    from each radius does. Why each start on its own: one lattice over all of them would start
+    every radius from the single best centre, and a ring-read punch's coarse best can be the
+    wrong start; polishing only the best few of all starts lost 1–8 points of median error.
+    """
+    n_f = table.shape[0]
+    n_r = radius_index.shape[0]
+    cand = np.full((n_f * n_r, 5), np.inf)
+    fam = np.zeros(n_f * n_r, np.int64)
+    best = (np.inf, 0.0, 0.0, 0.0, 0.0, -1)
+    for s in range(centres.shape[0]):
+        n = 0
+        costs, forces = _lattice_costs(
+            table, t0, dt, step, xy, d, w2, centres[s], centre_radius_index
+        )
+        for f in range(n_f):
+            bc = np.inf
+            bx = centres[s, 0, 0]
+            by = centres[s, 0, 1]
+            for m in range(centre_radius_index.shape[0]):
+                for c in range(centres.shape[1]):
+                    if forces[f, m, c] > 0.0 and costs[f, m, c] < bc:
+                        bc, bx, by = costs[f, m, c], centres[s, c, 0], centres[s, c, 1]
+            if not bc < np.inf:
+                continue
+            for m in range(n_r):
+                t = t0 + dt * radius_index[m]
+                cost, x, y, tt, force = lm_fit(table, f, t0, dt, step, xy, d, w2, bx, by, t, pre)
+                if force > 0.0:
+                    cand[n, 0] = cost
+                    cand[n, 1] = x
+                    cand[n, 2] = y
+                    cand[n, 3] = tt
+                    cand[n, 4] = force
+                    fam[n] = f
+                    n += 1
+        order = np.argsort(cand[:n, 0])
+        for m in range(min(keep, n)):
+            q = order[m]
+            cost, x, y, t, force = lm_fit(
+                table,
+                fam[q],
+                t0,
+                dt,
+                step,
+                xy,
+                d,
+                w2,
+                cand[q, 1],
+                cand[q, 2],
+                cand[q, 3],
+                iterations,
+            )
+            if force > 0.0 and cost < best[0]:
+                best = (cost, x, y, t, force, fam[q])
+    return best
+
+
+@numba.njit(**_JIT)
+def render(centres, cell, sub, x, y, a, force, punch, out):  # pragma: no cover - compiled
+    """Add one round contact's pressure [Pa] to ``out`` (N,) on square cells of side ``cell``
+    [m] at ``centres`` (N, 2): the profile's mean over sub × sub points per cell, scaled so the
+    cells carry ``force`` [N]. Profile (a² − r²)^(−½) when ``punch``, else (a² − r²)^(½); the
+    punch's integrable edge singularity is sampled half a sub-cell inside the edge."""
+    edge = a - 0.5 * cell / sub
+    near = np.empty(centres.shape[0], np.int64)
+    vals = np.empty(centres.shape[0])
+    n = 0
+    total = 0.0
+    for c in range(centres.shape[0]):
+        cx = centres[c, 0] - x
+        cy = centres[c, 1] - y
+        if math.sqrt(cx * cx + cy * cy) > a + cell:
+            continue
+        acc = 0.0
+        for i in range(sub):
+            px = cx + ((i + 0.5) / sub - 0.5) * cell
+            for j in range(sub):
+                py = cy + ((j + 0.5) / sub - 0.5) * cell
+                r = math.sqrt(px * px + py * py)
+                if r >= a:
+                    continue
+                rr = max(min(r, edge), 0.0)
+                acc += 1.0 / math.sqrt(a * a - rr * rr) if punch else math.sqrt(a * a - rr * rr)
+        near[n] = c
+        vals[n] = acc / (sub * sub)
+        total += vals[n]
+        n += 1
+    total *= cell * cell
+    scale = force / total if total > 0.0 else 0.0
+    for m in range(n):
+        out[near[m]] += vals[m] * scale

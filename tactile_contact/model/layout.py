@@ -1,0 +1,642 @@
+"""Patch layouts: the YAML schema, loading and validation.
+
+A layout file holds one or more *patches*. A patch is a rigid piece of skin with its own frame:
+a set of modules (type, CAN address, placement), one elastomer, one sensor calibration, the
+reconstruction grids, the elastic model and the solver options. Everything the offline tool
+needs to build a matrix bundle comes from here. All lengths are metres, moduli pascals,
+capacitances farads (docs/layout.md lists every key with unit and default).
+
+Validation errors are :class:`LayoutError` (a ``ValueError``) whose message names the file,
+the key path and the problem, e.g.
+``config/x.yaml: patches[0].modules[3].type: unknown module type 'foo' (known: ...)``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+from tactile_contact.model.modules import MODULE_TYPES, ModuleType, place_channels, taxel_id
+
+SCHEMA_VERSION = 1
+MODELS = ("love", "boussinesq")
+MASKS = ("taxels", "modules", "none")
+SOLVER_METHODS = ("nnls_tikhonov", "tikhonov", "tsvd", "pinv")
+REGULARISERS = ("identity", "laplacian")
+#: Rules that pick the Tikhonov λ or the TSVD rank at build time
+#: (tactile_contact.offline.build.regularisation).
+PARAMETER_RULES = ("gcv", "lcurve", "discrepancy")
+#: Two taxels closer than this [m] are treated as the same place (a layout mistake), whatever
+#: their electrodes; taxels whose electrode discs overlap are refused too.
+MIN_TAXEL_SEPARATION = 1.0e-3
+
+
+class LayoutError(ValueError):
+    """A layout file is unreadable or invalid; the message names file, key path and problem."""
+
+
+@dataclass(frozen=True)
+class ModuleSpec:
+    """One skin module placed in the patch frame.
+
+    Attributes:
+        type: module type name (see :data:`tactile_contact.model.modules.MODULE_TYPES`).
+        board: CAN board address 0..15.
+        triangle: triangle address 0..15 on that board.
+        position: (x, y) of the module origin in the patch frame [m].
+        rotation_deg: counter-clockwise rotation of the module frame [deg].
+        mirrored: module frame mirrored about its y axis before rotating.
+        disabled_channels: channels excluded from reconstruction (broken or covered taxels).
+    """
+
+    type: str
+    board: int
+    triangle: int
+    position: tuple[float, float]
+    rotation_deg: float = 0.0
+    mirrored: bool = False
+    disabled_channels: tuple[int, ...] = ()
+
+    @property
+    def module_type(self) -> ModuleType:
+        return MODULE_TYPES[self.type]
+
+
+@dataclass(frozen=True)
+class Elastomer:
+    """The soft layer: thickness h [m], Young's modulus E [Pa], Poisson's ratio ν [-]."""
+
+    thickness: float = 2.0e-3
+    young: float = 2.1e5
+    poisson: float = 0.5
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """Capacitive taxel calibration.
+
+    Attributes:
+        epsilon_r: relative permittivity of the dielectric [-].
+        taxel_radius: radius of a taxel's electrode [m]; its area is π r².
+        farad_per_count: capacitance of one CDC count [F].
+        no_load: 8-bit reading with no load [counts].
+        shift: right shift applied by the firmware to the CDC value [bits].
+    """
+
+    epsilon_r: float = 4.37
+    taxel_radius: float = 2.0e-3
+    farad_per_count: float = 0.32e-15
+    no_load: int = 240
+    shift: int = 2
+
+    @property
+    def area(self) -> float:
+        """Electrode area [m²]."""
+        return math.pi * self.taxel_radius**2
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    """Reconstruction grids.
+
+    Attributes:
+        traction_cell: edge of the square pressure cells [m].
+        deflection_cell: edge of the square cells of the output deflection grid [m].
+        margin: extent of the grids beyond the outermost taxel centres [m].
+        mask: which cells are skin: ``taxels`` (within ``mask_distance`` of a valid taxel),
+            ``modules`` (within ``mask_distance`` of a module's channel hull) or ``none``.
+        mask_distance: distance used by the mask [m].
+    """
+
+    traction_cell: float = 2.0e-3
+    deflection_cell: float = 1.0e-3
+    margin: float = 3.0e-3
+    mask: str = "taxels"
+    mask_distance: float = 3.5e-3
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """Elastic model: ``love`` (uniform pressure cells) or ``boussinesq`` (point forces with the
+    Muscari self term, ``psi`` = ``exact`` for Ψ(x) = (0.2431x − 0.1814)/x or a constant such as
+    0.25). ``taxel_average``: a taxel measures the mean deflection over its electrode disc
+    (True, default) rather than the value at its centre.
+
+    The taxel's effective response, as ``tactile-contact-calibrate`` fits it to presses of
+    known force and position (defaults: the nominal sensor):
+    ``footprint_radius``: radius [m] of the disc a taxel averages the deflection over (None:
+    the electrode's, ``sensor.taxel_radius``; 0: the value at its centre); ``gain``: reading
+    per true compression [-]; ``layer_scale``: elastic layer thickness over the nominal
+    ``elastomer.thickness`` [-]."""
+
+    kind: str = "love"
+    psi: str | float = "exact"
+    taxel_average: bool = True
+    footprint_radius: float | None = None
+    gain: float = 1.0
+    layer_scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class SolverSpec:
+    """Online solver options (docs/reconstruction.md explains the choices and defaults).
+
+    Attributes:
+        method: ``nnls_tikhonov`` (default), ``tikhonov``, ``tsvd`` or ``pinv`` (the paper's).
+        regulariser: ``identity`` or ``laplacian`` (smoothness) for the Tikhonov term.
+        tikhonov: λ relative to the largest singular value of C [-], or a rule that picks it
+            at build time (``gcv``, ``lcurve``, ``discrepancy``; PARAMETER_RULES).
+        rcond: relative singular-value cut-off of ``pinv`` [-].
+        tsvd_rank: singular values kept by ``tsvd``, or a rule (default ``discrepancy``).
+        noise: taxel compression noise [m], for the free solution's non-negativity test.
+        contact_threshold: compression [m] above which a taxel counts as active (reported as
+            ``taxels_active``; a seed of a separate contact above 2.5×). With ``refine: round``
+            contact is detected against the noise (tactile_contact.inverse.detection); for the
+            grid-only
+            methods a frame is in contact when a valid taxel's |δ| exceeds it. The default,
+            1.1e-5 m (≈ 1.05 count), ignores the ±1-count readings of an idle skin.
+        nnls_method: ``bpp`` (block principal pivoting) or ``fista``.
+        support_radius: the second NNLS pass keeps cells within this distance of the first
+            pass's strong cells [m].
+        seed_fraction: first-pass cells at or above this fraction of its peak seed the support.
+        area_rel_threshold: a cell is in contact above this fraction of the peak pressure [-].
+        area_min_pressure: ... and above this pressure [Pa].
+        refine: ``round`` (default): on every contact frame, fit round contacts straight to
+            the readings through radial responses tabulated offline on a 0.1 mm grid
+            (tactile_contact.inverse.round_contact): least squares, or the posterior mean for
+            quantised readings; the grid solution only when they do not explain the readings;
+            ``none``: the grid solution always (far worse force).
+        max_contacts: ``refine: round`` fits up to this many separate round contacts (one per
+            taxel that reads most within 8 mm), kept over the single contact only when they
+            explain the readings better than extra parameters fitted to noise would; 1 fits
+            one contact always.
+    """
+
+    method: str = "nnls_tikhonov"
+    regulariser: str = "identity"
+    tikhonov: float | str = 0.1
+    rcond: float = 1.0e-3
+    tsvd_rank: int | str | None = "discrepancy"
+    noise: float = 6.0e-6
+    contact_threshold: float = 1.1e-5
+    nnls_method: str = "bpp"
+    support_radius: float = 4.0e-3
+    seed_fraction: float = 0.3
+    area_rel_threshold: float = 0.1
+    area_min_pressure: float = 100.0
+    refine: str = "round"
+    max_contacts: int = 3
+
+
+@dataclass(frozen=True)
+class PatchLayout:
+    """One patch: modules plus the physical and numerical parameters of its reconstruction."""
+
+    name: str
+    frame_id: str
+    modules: tuple[ModuleSpec, ...]
+    elastomer: Elastomer = field(default_factory=Elastomer)
+    sensor: SensorSpec = field(default_factory=SensorSpec)
+    grid: GridSpec = field(default_factory=GridSpec)
+    model: ModelSpec = field(default_factory=ModelSpec)
+    solver: SolverSpec = field(default_factory=SolverSpec)
+
+    def _channels(self, valid_only: bool) -> list[tuple[ModuleSpec, int, NDArray[np.float64]]]:
+        out = []
+        for m in self.modules:
+            xy = place_channels(m.module_type, m.position, m.rotation_deg, m.mirrored)
+            for ch in range(len(xy)):
+                ok = m.module_type.taxel[ch] and ch not in m.disabled_channels
+                if ok or not valid_only:
+                    out.append((m, ch, xy[ch]))
+        return out
+
+    def taxel_xy(self) -> NDArray[np.float64]:
+        """(K, 2) centres [m] of the valid taxels in the patch frame, in bundle order (modules in
+        file order, channels ascending; thermal pads and disabled channels left out)."""
+        ch = self._channels(valid_only=True)
+        return np.array([c[2] for c in ch], dtype=np.float64).reshape(-1, 2)
+
+    def taxel_ids(self) -> NDArray[np.int64]:
+        """(K,) bus-unique ids (:func:`tactile_contact.model.modules.taxel_id`) of the valid
+        taxels."""
+        ch = self._channels(valid_only=True)
+        return np.array([taxel_id(m.board, m.triangle, c) for m, c, _ in ch], dtype=np.int64)
+
+    def channel_xy(self) -> NDArray[np.float64]:
+        """(12·M, 2) centres [m] of every channel of every module, valid or not."""
+        return np.array([c[2] for c in self._channels(valid_only=False)]).reshape(-1, 2)
+
+    def valid_mask(self) -> NDArray[np.bool_]:
+        """(12·M,) True for channels that are valid taxels (same order as :meth:`channel_xy`)."""
+        return np.array(
+            [
+                m.module_type.taxel[c] and c not in m.disabled_channels
+                for m, c, _ in self._channels(False)
+            ],
+            dtype=bool,
+        )
+
+    def module_outlines(self) -> list[NDArray[np.float64]]:
+        """Per module, the (12, 2) channel centres [m] (pads included) in the patch frame."""
+        return [
+            place_channels(m.module_type, m.position, m.rotation_deg, m.mirrored)
+            for m in self.modules
+        ]
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-data form (lists, floats) used for hashing and in bundle manifests."""
+        d = asdict(self)
+        d["modules"] = [
+            dict(m, position=list(m["position"]), disabled_channels=list(m["disabled_channels"]))
+            for m in d["modules"]
+        ]
+        return d
+
+    @property
+    def footprint(self) -> float:
+        """Radius [m] of the disc each taxel averages the deflection over (0: a point)."""
+        if self.model.footprint_radius is not None:
+            return self.model.footprint_radius
+        return self.sensor.taxel_radius if self.model.taxel_average else 0.0
+
+    @property
+    def layer_thickness(self) -> float:
+        """Thickness [m] of the elastic layer in the model (nominal × ``layer_scale``)."""
+        return self.elastomer.thickness * self.model.layer_scale
+
+    def layout_hash(self) -> str:
+        """sha256 of the geometry (modules) — a bundle of another layout is *foreign*."""
+        geo = {"name": self.name, "modules": self.to_dict()["modules"]}
+        return _sha(geo)
+
+    def parameter_hash(self) -> str:
+        """sha256 of everything that changes the matrices (all but name/frame) — *stale* check."""
+        d = self.to_dict()
+        d.pop("frame_id")
+        return _sha(d)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A layout file: one or more patches with unique names."""
+
+    patches: tuple[PatchLayout, ...]
+    source: str = "<memory>"
+
+    def patch(self, name: str) -> PatchLayout:
+        for p in self.patches:
+            if p.name == name:
+                return p
+        raise KeyError(
+            f"{self.source}: no patch named {name!r} (have: {[p.name for p in self.patches]})"
+        )
+
+
+def _sha(obj: Any) -> str:
+    text = json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+# --------------------------------------------------------------------------------------------
+# Parsing. Each helper receives the error prefix ``where`` ("file: key.path") so that messages
+# name exactly the offending entry.
+
+
+class _Ctx:
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def err(self, path: str, msg: str) -> LayoutError:
+        return LayoutError(f"{self.source}: {path}: {msg}" if path else f"{self.source}: {msg}")
+
+    def mapping(self, value: Any, path: str, allowed: tuple[str, ...]) -> dict[str, Any]:
+        if value is None:
+            return {}
+        if not isinstance(value, dict):
+            raise self.err(path, f"expected a mapping, got {type(value).__name__}")
+        unknown = [k for k in value if k not in allowed]
+        if unknown:
+            raise self.err(
+                f"{path}.{unknown[0]}" if path else str(unknown[0]),
+                f"unknown key (allowed: {', '.join(allowed)})",
+            )
+        return value
+
+    def number(
+        self,
+        d: dict[str, Any],
+        key: str,
+        path: str,
+        default: Any,
+        *,
+        lo: float | None = None,
+        hi: float | None = None,
+        lo_open: bool = False,
+        hi_open: bool = False,
+        integer: bool = False,
+        optional: bool = False,
+    ) -> Any:
+        p = f"{path}.{key}"
+        if key not in d or d[key] is None:
+            if default is _REQUIRED:
+                raise self.err(p, "missing required key")
+            return default
+        v = d[key]
+        if isinstance(v, str) and not integer:
+            # PyYAML (YAML 1.1) reads 2.1e5 as a string: accept what float() accepts.
+            with contextlib.suppress(ValueError):
+                v = float(v)
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise self.err(p, f"expected a number, got {v!r}")
+        if integer and (not isinstance(v, int)):
+            raise self.err(p, f"expected an integer, got {v!r}")
+        if not math.isfinite(v):
+            raise self.err(p, f"must be finite, got {v!r}")
+        if lo is not None and (v < lo or (lo_open and v == lo)):
+            raise self.err(p, f"must be {'>' if lo_open else '>='} {lo}, got {v!r}")
+        if hi is not None and (v > hi or (hi_open and v == hi)):
+            raise self.err(p, f"must be {'<' if hi_open else '<='} {hi}, got {v!r}")
+        return int(v) if integer else float(v)
+
+    def choice(
+        self, d: dict[str, Any], key: str, path: str, default: str, options: tuple[str, ...]
+    ) -> str:
+        v = d.get(key, default)
+        if v not in options:
+            raise self.err(f"{path}.{key}", f"unknown value {v!r} (known: {', '.join(options)})")
+        return str(v)
+
+
+_REQUIRED = object()
+
+
+def _parse_module(c: _Ctx, raw: Any, path: str) -> ModuleSpec:
+    d = c.mapping(
+        raw,
+        path,
+        ("type", "board", "triangle", "position", "rotation_deg", "mirrored", "disabled_channels"),
+    )
+    if "type" not in d:
+        raise c.err(f"{path}.type", "missing required key")
+    if d["type"] not in MODULE_TYPES:
+        known = ", ".join(sorted(MODULE_TYPES))
+        raise c.err(f"{path}.type", f"unknown module type {d['type']!r} (known: {known})")
+    board = c.number(d, "board", path, _REQUIRED, lo=0, hi=15, integer=True)
+    tri = c.number(d, "triangle", path, _REQUIRED, lo=0, hi=15, integer=True)
+    pos = d.get("position")
+    if (
+        not isinstance(pos, (list, tuple))
+        or len(pos) != 2
+        or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            for v in pos
+        )
+    ):
+        raise c.err(f"{path}.position", f"expected [x, y] in metres, got {pos!r}")
+    rot = c.number(d, "rotation_deg", path, 0.0)
+    mirrored = d.get("mirrored", False)
+    if not isinstance(mirrored, bool):
+        raise c.err(f"{path}.mirrored", f"expected true or false, got {mirrored!r}")
+    dis = d.get("disabled_channels", []) or []
+    nch = len(MODULE_TYPES[d["type"]].taxel)
+    if not isinstance(dis, list) or not all(
+        isinstance(v, int) and not isinstance(v, bool) and 0 <= v < nch for v in dis
+    ):
+        raise c.err(
+            f"{path}.disabled_channels", f"expected a list of channels 0..{nch - 1}, got {dis!r}"
+        )
+    return ModuleSpec(
+        d["type"],
+        board,
+        tri,
+        (float(pos[0]), float(pos[1])),
+        rot,
+        mirrored,
+        tuple(sorted(set(dis))),
+    )
+
+
+def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
+    d = c.mapping(
+        raw, path, ("name", "frame_id", "modules", "elastomer", "sensor", "grid", "model", "solver")
+    )
+    name = d.get("name")
+    if not isinstance(name, str) or not name or not all(ch.isalnum() or ch in "_-" for ch in name):
+        raise c.err(
+            f"{path}.name",
+            f"expected a non-empty name of letters, digits, '_' or '-', got {name!r}",
+        )
+    frame = d.get("frame_id", name)
+    if not isinstance(frame, str) or not frame:
+        raise c.err(f"{path}.frame_id", f"expected a non-empty string, got {frame!r}")
+    mods = d.get("modules")
+    if not isinstance(mods, list) or not mods:
+        raise c.err(f"{path}.modules", "expected a non-empty list of modules")
+    modules = tuple(_parse_module(c, m, f"{path}.modules[{i}]") for i, m in enumerate(mods))
+
+    e = c.mapping(d.get("elastomer"), f"{path}.elastomer", ("thickness", "young", "poisson"))
+    ep = f"{path}.elastomer"
+    mod = c.mapping(
+        d.get("model"),
+        f"{path}.model",
+        ("kind", "psi", "taxel_average", "footprint_radius", "gain", "layer_scale"),
+    )
+    kind = c.choice(mod, "kind", f"{path}.model", "love", MODELS)
+    elast = Elastomer(
+        thickness=c.number(e, "thickness", ep, 2.0e-3, lo=0.0, lo_open=True, hi=0.1),
+        young=c.number(e, "young", ep, 2.1e5, lo=0.0, lo_open=True),
+        # ν = 0.5 (incompressible, Ecoflex) is fine for both models: every kernel stays finite.
+        # Beyond 0.5 the material would be unstable; ν ≤ −1 likewise.
+        poisson=c.number(e, "poisson", ep, 0.5, lo=-1.0, lo_open=True, hi=0.5),
+    )
+    psi: str | float = mod.get("psi", "exact")
+    if kind == "love" and "psi" in mod:
+        # Silently ignoring it would let a user believe the Ψ they set shapes the matrices.
+        raise c.err(f"{path}.model.psi", "only the boussinesq model has a Ψ (kind is love)")
+    if kind == "boussinesq" and not (
+        psi == "exact"
+        or (isinstance(psi, (int, float)) and not isinstance(psi, bool) and 0 < psi < 10)
+    ):
+        raise c.err(f"{path}.model.psi", f"expected 'exact' or a positive number, got {psi!r}")
+    tav = mod.get("taxel_average", True)
+    if not isinstance(tav, bool):
+        raise c.err(f"{path}.model.taxel_average", f"expected true or false, got {tav!r}")
+    mp = f"{path}.model"
+    model = ModelSpec(
+        kind,
+        psi if isinstance(psi, str) else float(psi),
+        tav,
+        c.number(mod, "footprint_radius", mp, None, lo=0.0, hi=0.02),
+        c.number(mod, "gain", mp, 1.0, lo=0.05, hi=20.0),
+        c.number(mod, "layer_scale", mp, 1.0, lo=0.25, hi=4.0),
+    )
+
+    s = c.mapping(
+        d.get("sensor"),
+        f"{path}.sensor",
+        ("epsilon_r", "taxel_radius", "area", "farad_per_count", "no_load", "shift"),
+    )
+    sp = f"{path}.sensor"
+    if "taxel_radius" in s and "area" in s:
+        raise c.err(f"{sp}.area", "give either taxel_radius or area, not both")
+    if "area" in s:
+        radius = math.sqrt(c.number(s, "area", sp, 0.0, lo=0.0, lo_open=True) / math.pi)
+    else:
+        radius = c.number(s, "taxel_radius", sp, 2.0e-3, lo=0.0, lo_open=True, hi=0.02)
+    sensor = SensorSpec(
+        epsilon_r=c.number(s, "epsilon_r", sp, 4.37, lo=1.0),
+        taxel_radius=radius,
+        farad_per_count=c.number(s, "farad_per_count", sp, 0.32e-15, lo=0.0, lo_open=True),
+        no_load=c.number(s, "no_load", sp, 240, lo=1, hi=255, integer=True),
+        shift=c.number(s, "shift", sp, 2, lo=0, hi=15, integer=True),
+    )
+
+    g = c.mapping(
+        d.get("grid"),
+        f"{path}.grid",
+        ("traction_cell", "deflection_cell", "margin", "mask", "mask_distance"),
+    )
+    gp = f"{path}.grid"
+    grid = GridSpec(
+        traction_cell=c.number(g, "traction_cell", gp, 2.0e-3, lo=1e-4, hi=0.05),
+        deflection_cell=c.number(g, "deflection_cell", gp, 1.0e-3, lo=1e-4, hi=0.05),
+        margin=c.number(g, "margin", gp, 3.0e-3, lo=0.0, hi=0.1),
+        mask=c.choice(g, "mask", gp, "taxels", MASKS),
+        mask_distance=c.number(g, "mask_distance", gp, 3.5e-3, lo=0.0, lo_open=True, hi=0.1),
+    )
+
+    so = c.mapping(d.get("solver"), f"{path}.solver", tuple(SolverSpec.__dataclass_fields__))
+    sop = f"{path}.solver"
+    solver = SolverSpec(
+        method=c.choice(so, "method", sop, "nnls_tikhonov", SOLVER_METHODS),
+        regulariser=c.choice(so, "regulariser", sop, "identity", REGULARISERS),
+        tikhonov=_number_or_rule(c, so, "tikhonov", sop, 0.1, lo=0.0, hi=10.0),
+        rcond=c.number(so, "rcond", sop, 1e-3, lo=0.0, lo_open=True, hi=1.0),
+        tsvd_rank=_number_or_rule(c, so, "tsvd_rank", sop, "discrepancy", lo=1, integer=True),
+        noise=c.number(so, "noise", sop, 6.0e-6, lo=0.0, hi=1e-3),
+        contact_threshold=c.number(so, "contact_threshold", sop, 1.1e-5, lo=0.0, hi=1e-3),
+        nnls_method=c.choice(so, "nnls_method", sop, "bpp", ("bpp", "fista")),
+        support_radius=c.number(so, "support_radius", sop, 4.0e-3, lo=0.0, lo_open=True, hi=0.1),
+        seed_fraction=c.number(so, "seed_fraction", sop, 0.3, lo=0.0, hi=1.0),
+        area_rel_threshold=c.number(
+            so, "area_rel_threshold", sop, 0.1, lo=0.0, hi=1.0, hi_open=True
+        ),
+        area_min_pressure=c.number(so, "area_min_pressure", sop, 100.0, lo=0.0),
+        refine=c.choice(so, "refine", sop, "round", ("round", "none")),
+        max_contacts=c.number(so, "max_contacts", sop, 3, lo=1, hi=8, integer=True),
+    )
+    patch = PatchLayout(str(name), frame, modules, elast, sensor, grid, model, solver)
+    _check_patch(c, patch, path)
+    return patch
+
+
+def _check_patch(c: _Ctx, patch: PatchLayout, path: str) -> None:
+    seen: dict[tuple[int, int], int] = {}
+    for i, m in enumerate(patch.modules):
+        key = (m.board, m.triangle)
+        if key in seen:
+            raise c.err(
+                f"{path}.modules[{i}]",
+                f"duplicate CAN address board {m.board} triangle "
+                f"{m.triangle} (also modules[{seen[key]}])",
+            )
+        seen[key] = i
+    xy = patch.taxel_xy()
+    if len(xy) == 0:
+        raise c.err(f"{path}.modules", "no valid taxel left (all channels disabled)")
+    owner = [
+        i
+        for i, m in enumerate(patch.modules)
+        for ch in range(12)
+        if m.module_type.taxel[ch] and ch not in m.disabled_channels
+    ]
+    d2 = ((xy[:, None, :] - xy[None, :, :]) ** 2).sum(-1)
+    np.fill_diagonal(d2, np.inf)
+    i, j = np.unravel_index(int(np.argmin(d2)), d2.shape)
+    # Two electrodes cannot share skin: their discs must not overlap.
+    limit = max(MIN_TAXEL_SEPARATION, 2.0 * patch.sensor.taxel_radius)
+    if d2[i, j] < limit**2:
+        raise c.err(
+            f"{path}.modules[{owner[j]}]",
+            f"overlapping taxels: a taxel at "
+            f"({xy[j, 0]:.4f}, {xy[j, 1]:.4f}) m is {math.sqrt(d2[i, j]) * 1e3:.2f} mm from "
+            f"one of modules[{owner[i]}] (their electrodes of radius "
+            f"{patch.sensor.taxel_radius * 1e3:g} mm overlap below {limit * 1e3:g} mm)",
+        )
+
+
+def _number_or_rule(c: Any, d: dict[str, Any], key: str, path: str, default: Any, **kw: Any):
+    """A number as ``c.number`` checks it, or the name of a parameter rule (PARAMETER_RULES);
+    ``all`` is None (for ``tsvd_rank``: no truncation)."""
+    v = d.get(key)
+    if v in PARAMETER_RULES:
+        return v
+    if key == "tsvd_rank" and v == "all":
+        return None
+    try:
+        return c.number(d, key, path, default, **kw)
+    except LayoutError:
+        if isinstance(v, str):
+            known = ", ".join(PARAMETER_RULES + (("all",) if key == "tsvd_rank" else ()))
+            raise c.err(
+                f"{path}.{key}", f"unknown rule {v!r} (known: {known}, or a number)"
+            ) from None
+        raise
+
+
+def parse_layout(data: Any, source: str = "<memory>") -> Layout:
+    """Validate plain data (as loaded from YAML) and return a :class:`Layout`."""
+    c = _Ctx(source)
+    d = c.mapping(data, "", ("schema_version", "patches"))
+    ver = d.get("schema_version", SCHEMA_VERSION)
+    if ver != SCHEMA_VERSION:
+        raise c.err(
+            "schema_version", f"unsupported version {ver!r} (this library reads {SCHEMA_VERSION})"
+        )
+    raw = d.get("patches")
+    if not isinstance(raw, list) or not raw:
+        raise c.err("patches", "expected a non-empty list of patches")
+    patches = tuple(_parse_patch(c, p, f"patches[{i}]") for i, p in enumerate(raw))
+    names: dict[str, int] = {}
+    addr: dict[tuple[int, int], str] = {}
+    for i, p in enumerate(patches):
+        if p.name in names:
+            raise c.err(
+                f"patches[{i}].name",
+                f"duplicate patch name {p.name!r} (also patches[{names[p.name]}])",
+            )
+        names[p.name] = i
+        for k, m in enumerate(p.modules):
+            key = (m.board, m.triangle)
+            if key in addr:
+                raise c.err(
+                    f"patches[{i}].modules[{k}]",
+                    f"duplicate CAN address board {m.board} "
+                    f"triangle {m.triangle} (also in patch {addr[key]!r})",
+                )
+            addr[key] = p.name
+    return Layout(patches, source)
+
+
+def load_layout(path: str | Path) -> Layout:
+    """Read and validate a layout YAML file; raises :class:`LayoutError`."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise LayoutError(f"{p}: cannot read: {exc.strerror or exc}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise LayoutError(f"{p}: invalid YAML: {exc}".replace("\n", " ")) from None
+    return parse_layout(data, str(p))

@@ -1,0 +1,547 @@
+"""Calibration of a patch's effective taxel response from presses of known force and position.
+
+What a taxel reads is not known until measured: the deflection averaged over some footprint
+(a point, the 2 mm electrode, more), times some gain, over a layer a little thicker or thinner
+than its datasheet. Each of these biases the force by 5–20 % (docs/reconstruction.md). A lab
+presses the skin with an indenter on a force sensor at known places; this module fits
+
+* ``footprint_radius`` [m]: the disc a taxel averages the deflection over,
+* ``gain`` [-]: reading per true compression,
+* ``layer_scale`` [-]: elastic layer thickness over the nominal one,
+
+by least squares over all presses, and writes bundles built with them
+(``tactile-contact-calibrate LAYOUT.yaml PRESSES.npz -o BUNDLE_DIR``). When the presses name
+their indenter (``indenter``: "sphere 12 mm", "cylinder 3 mm", … or "hertz:R" / "punch:a" with
+R, a in mm) each press is predicted exactly; otherwise each press's contact (profile and size)
+is fitted too, which needs more presses. No ROS import.
+
+PRESSES.npz: ``deflection`` (N, K) compressions [m] in the bundle's taxel order (the quantity
+``Reconstructor.solve_deflection`` takes) or ``delta_c`` (N, K) ΔC in CDC counts (converted
+with the layout's sensor model); ``force`` (N,) [N]; ``position`` (N, 2) [m], patch frame;
+optionally ``indenter`` (N,) strings and ``valid`` (N, K) bool.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import math
+import re
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+from tactile_contact.model.indenters import FlatPunch, HertzSphere, Indenter
+from tactile_contact.model.layout import LayoutError, PatchLayout, load_layout
+
+#: Indenters a press may name (the paper's set; the simulator and bench use the same).
+INDENTERS: dict[str, Indenter] = {
+    "sphere 12 mm": HertzSphere(6e-3),
+    "sphere 6 mm": HertzSphere(3e-3),
+    "cylinder 12 mm": FlatPunch(6e-3),
+    "cylinder 3 mm": FlatPunch(1.5e-3),
+}
+#: Fewest presses accepted: three parameters, and a press informs mostly its own taxels.
+MIN_PRESSES = 8
+#: Search grids: footprint radius [m] and layer scale [-] (the gain is solved in closed form).
+FOOTPRINTS = tuple(np.round(np.arange(0.0, 4.01e-3, 0.25e-3), 6))
+LAYER_SCALES = tuple(np.round(np.arange(0.75, 1.251, 0.05), 4))
+#: Only taxels within this distance [m] of a press are fitted (farther ones read < 1 % of it).
+REACH = 0.015
+#: Profiles tried for a press that names no indenter: contact radii [m] per family.
+FREE_RADII = tuple(float(a) for a in np.geomspace(0.5e-3, 8e-3, 16))
+
+
+class CalibrationError(ValueError):
+    """A presses file or calibration that cannot be used; the message names the file/key."""
+
+
+@dataclass(frozen=True)
+class Presses:
+    """Validated presses: deflection (N, K) [m], force (N,) [N], position (N, 2) [m],
+    indenter (N,) names or None, valid (N, K) bool."""
+
+    deflection: NDArray[np.float64]
+    force: NDArray[np.float64]
+    position: NDArray[np.float64]
+    indenter: tuple[str, ...] | None
+    valid: NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Fitted response and how well it explains the presses.
+
+    Attributes:
+        footprint_radius: [m]; gain: [-]; layer_scale: [-].
+        residual: RMS of (predicted − measured) over the fitted readings [m].
+        relative_residual: that RMS over the RMS of the readings [-].
+        nominal_relative_residual: the same for the layout's nominal response [-].
+        presses: presses used; readings: readings fitted.
+        grid: footprint × layer-scale cost surface (relative residual), for the record.
+    """
+
+    footprint_radius: float
+    gain: float
+    layer_scale: float
+    residual: float
+    relative_residual: float
+    nominal_relative_residual: float
+    presses: int
+    readings: int
+    seconds: float = 0.0
+    grid: dict[str, Any] = field(default_factory=dict)
+
+    def metadata(self) -> dict[str, Any]:
+        d = asdict(self)
+        d.pop("grid")
+        return d
+
+
+def indenter_named(name: str) -> Indenter:
+    """The indenter a press names: a key of INDENTERS, or "hertz:R" / "punch:a" (R, a in mm)."""
+    key = str(name).strip().lower()
+    if key in INDENTERS:
+        return INDENTERS[key]
+    m = re.fullmatch(r"(hertz|sphere|punch|cylinder)\s*:\s*([0-9.]+)", key)
+    if m:
+        size = float(m.group(2)) * 1e-3
+        return HertzSphere(size) if m.group(1) in ("hertz", "sphere") else FlatPunch(size)
+    known = ", ".join(sorted(INDENTERS))
+    raise CalibrationError(f"unknown indenter {name!r}: expected one of {known}, or hertz:R_mm")
+
+
+def load_presses(path: str | Path, patch: PatchLayout) -> Presses:
+    """Read and check PRESSES.npz for ``patch`` (errors name the file and the key)."""
+    p = Path(path)
+    try:
+        z = np.load(p, allow_pickle=False)
+        data = {k: z[k] for k in z.files}
+    except FileNotFoundError:
+        raise CalibrationError(f"{p}: no such file") from None
+    except Exception as e:  # every unreadable file is one clear error
+        raise CalibrationError(f"{p}: not a readable .npz file ({e})") from None
+    k = len(patch.taxel_xy())
+
+    def need(key: str) -> NDArray:
+        if key not in data:
+            raise CalibrationError(f"{p}: missing key {key!r} (keys: {sorted(data)})")
+        return data[key]
+
+    force = np.asarray(need("force"), dtype=np.float64)
+    if force.ndim != 1:
+        raise CalibrationError(f"{p}: 'force' must have shape (N,), got {force.shape}")
+    n = len(force)
+    if "deflection" in data:
+        d = np.asarray(data["deflection"], dtype=np.float64)
+        src = "deflection"
+    elif "delta_c" in data:
+        counts = np.asarray(data["delta_c"], dtype=np.float64)
+        from tactile_contact.model.sensor import delta_c_to_compression, value_count_farad
+
+        s = patch.sensor
+        if counts.shape == (n, k):
+            dc = counts * value_count_farad(s.farad_per_count, s.shift)
+            d = delta_c_to_compression(
+                np.where(np.isfinite(dc), dc, 0.0), patch.elastomer.thickness, s.epsilon_r, s.area
+            )
+            d = np.where(np.isfinite(counts), d, np.nan)
+        else:
+            d = counts
+        src = "delta_c"
+    else:
+        raise CalibrationError(f"{p}: needs 'deflection' [m] or 'delta_c' [counts] (N, K)")
+    if d.shape != (n, k):
+        raise CalibrationError(
+            f"{p}: {src!r} must have shape (N, K) = ({n}, {k}) for patch {patch.name!r} "
+            f"(N from 'force', K its taxels), got {d.shape}"
+        )
+    pos = np.asarray(need("position"), dtype=np.float64)
+    if pos.shape != (n, 2):
+        raise CalibrationError(f"{p}: 'position' must have shape ({n}, 2) [m], got {pos.shape}")
+    valid = np.ones((n, k), bool)
+    if "valid" in data:
+        valid = np.asarray(data["valid"], dtype=bool)
+        if valid.shape != (n, k):
+            raise CalibrationError(f"{p}: 'valid' must have shape ({n}, {k}), got {valid.shape}")
+    for key, v in (("force", force), ("position", pos)):
+        if not np.all(np.isfinite(v)):
+            bad = np.argwhere(~np.isfinite(v))[0]
+            raise CalibrationError(f"{p}: {key!r} holds NaN or inf (first at index {bad.tolist()})")
+    if not np.any(np.isfinite(d) & valid):
+        raise CalibrationError(f"{p}: {src!r} holds no finite reading")
+    valid &= np.isfinite(d)
+    d = np.where(valid, d, 0.0)
+    if np.any(force <= 0):
+        raise CalibrationError(f"{p}: 'force' must be > 0 N (press {int(np.argmin(force))})")
+    if force.max() > 100.0:
+        raise CalibrationError(
+            f"{p}: 'force' up to {force.max():g} N: expected newtons (millinewtons given?)"
+        )
+    span = np.abs(patch.taxel_xy()).max() + 0.05
+    if np.abs(pos).max() > span:
+        raise CalibrationError(
+            f"{p}: 'position' up to {np.abs(pos).max():g}: expected metres in the patch frame "
+            "(millimetres given?)"
+        )
+    h = patch.elastomer.thickness
+    if np.abs(d).max() >= h:
+        raise CalibrationError(
+            f"{p}: {src!r} up to {np.abs(d).max():g} m, not below the layer thickness {h:g} m: "
+            "expected metres (micrometres given?)"
+        )
+    if n < MIN_PRESSES:
+        raise CalibrationError(f"{p}: {n} presses; at least {MIN_PRESSES} are needed")
+    names = None
+    if "indenter" in data:
+        raw = np.asarray(data["indenter"])
+        if raw.shape != (n,):
+            raise CalibrationError(f"{p}: 'indenter' must have shape ({n},), got {raw.shape}")
+        names = tuple(str(x) for x in raw)
+        for x in names:
+            try:
+                indenter_named(x)
+            except CalibrationError as e:
+                raise CalibrationError(f"{p}: 'indenter': {e}") from None
+    return Presses(d, force, pos, names, valid)
+
+
+def _profiles(presses: Presses, young: float, poisson: float) -> tuple[list, NDArray[np.int64]]:
+    """Unique (family, contact radius) of the named presses and each press's index."""
+    uniq: dict[tuple[int, float], int] = {}
+    index = []
+    for name, f in zip(presses.indenter or (), presses.force, strict=False):
+        ind = indenter_named(name)
+        fam = 0 if isinstance(ind, FlatPunch) else 1
+        key = (fam, round(float(ind.contact_radius(float(f), young, poisson)), 9))
+        index.append(uniq.setdefault(key, len(uniq)))
+    return list(uniq), np.asarray(index, dtype=np.int64)
+
+
+def calibrate(patch: PatchLayout, presses: Presses, *, progress: bool = False) -> Calibration:
+    """Fit footprint radius, gain and layer scale to ``presses`` (see module docstring).
+
+    A grid over footprint radius × layer scale (FOOTPRINTS × LAYER_SCALES) with the gain in
+    closed form at each point; a parabola through the best point and its neighbours along
+    each axis refines both; the refined point is evaluated exactly for the reported gain and
+    residual.
+    """
+    t0 = time.perf_counter()
+    model = _PressModel(patch, presses)
+    scales = np.asarray(LAYER_SCALES)
+    feet = np.asarray(FOOTPRINTS)
+    it = scales
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(scales, desc="calibrating", unit="layer scale", file=sys.stderr)
+    cost = np.empty((len(feet), len(scales)))
+    gains = np.empty_like(cost)
+    for si, s in enumerate(it):
+        cost[:, si], gains[:, si] = model.cost(float(s), feet)
+    fi, si = np.unravel_index(int(np.argmin(cost)), cost.shape)
+    foot = _parabola(feet, cost[:, si], fi, lo=0.0)
+    scale = _parabola(scales, cost[fi, :], si)
+    c1, g1 = model.cost(scale, np.array([foot]))
+    if c1[0] > cost[fi, si]:  # the parabola overshot: keep the grid point
+        foot, scale, c1, g1 = (
+            float(feet[fi]),
+            float(scales[si]),
+            cost[fi, si : si + 1],
+            gains[fi, si : si + 1],
+        )
+    nominal, _ = model.cost(patch.model.layer_scale, np.array([patch.footprint]), gain=1.0)
+    norm2, n_read = model.norm2, model.readings
+    return Calibration(
+        footprint_radius=float(foot),
+        gain=float(g1[0]),
+        layer_scale=float(scale),
+        residual=math.sqrt(float(c1[0]) / max(n_read, 1)),
+        relative_residual=math.sqrt(float(c1[0]) / norm2),
+        nominal_relative_residual=math.sqrt(float(nominal[0]) / norm2),
+        presses=len(presses.force),
+        readings=n_read,
+        seconds=round(time.perf_counter() - t0, 2),
+        grid={
+            "footprints": feet.tolist(),
+            "layer_scales": scales.tolist(),
+            "relative_residual": np.sqrt(cost / norm2).tolist(),
+        },
+    )
+
+
+def _parabola(x: NDArray, y: NDArray, i: int, lo: float | None = None) -> float:
+    """Vertex of the parabola through (x, y) at i − 1, i, i + 1 (x[i] at an end)."""
+    if i == 0 or i == len(x) - 1:
+        return float(x[i])
+    x0, x1, x2 = x[i - 1 : i + 2]
+    y0, y1, y2 = y[i - 1 : i + 2]
+    den = (x0 - x1) * (x0 - x2) * (x1 - x2)
+    a = (x2 * (y1 - y0) + x1 * (y0 - y2) + x0 * (y2 - y1)) / den
+    b = (x2**2 * (y0 - y1) + x1**2 * (y2 - y0) + x0**2 * (y1 - y2)) / den
+    if not a > 0:
+        return float(x1)
+    v = float(np.clip(-b / (2 * a), x0, x2))
+    return max(v, lo) if lo is not None else v
+
+
+class _PressModel:
+    """Predicted readings of the presses for a layer scale and footprint radii."""
+
+    def __init__(self, patch: PatchLayout, presses: Presses) -> None:
+        e = patch.elastomer
+        self.patch, self.presses = patch, presses
+        xy = patch.taxel_xy()
+        pos = presses.position
+        dist = np.hypot(xy[None, :, 0] - pos[:, None, 0], xy[None, :, 1] - pos[:, None, 1])
+        self.use = presses.valid & (dist <= REACH)
+        if presses.indenter is not None:
+            self.profiles, self.index = _profiles(presses, e.young, e.poisson)
+        else:
+            self.profiles, self.index = [(f, a) for f in (0, 1) for a in FREE_RADII], None
+        self.step = 1e-4
+        j = np.minimum(dist, REACH) / self.step
+        self.jl = np.floor(j).astype(np.int64)
+        self.w = j - self.jl
+        d = presses.deflection
+        self.norm2 = float(np.sum(np.where(self.use, d * d, 0.0)))
+        self.readings = int(self.use.sum())
+        if not self.norm2 > 0:
+            raise CalibrationError("the presses read nothing within reach of their positions")
+
+    def cost(
+        self, scale: float, footprints: NDArray, gain: float | None = None
+    ) -> tuple[NDArray, NDArray]:
+        """(squared residual [m²], gain) per footprint at this layer scale; the gain is
+        fitted unless given."""
+        from tactile_contact.inverse.round_contact import radial_responses
+
+        e, p = self.patch.elastomer, self.presses
+        tab = radial_responses(
+            e.thickness * scale,
+            e.young,
+            e.poisson,
+            footprints,
+            self.profiles,
+            reach=REACH + 2 * self.step,
+            step=self.step,
+            model=self.patch.model.kind,
+            psi=self.patch.model.psi,
+        )  # (P, F, J)
+        d, use = p.deflection, self.use
+        costs, gains = np.empty(len(footprints)), np.empty(len(footprints))
+        for fi in range(len(footprints)):
+            t = tab[:, fi]
+            resp = t[:, self.jl] * (1 - self.w) + t[:, self.jl + 1] * self.w  # (P, N, K)
+            pred = resp * p.force[None, :, None]
+            if self.index is not None:
+                pr = pred[self.index, np.arange(len(self.index))]
+                g = gain
+                if g is None:
+                    den = float(np.sum(np.where(use, pr * pr, 0.0)))
+                    g = float(np.sum(np.where(use, pr * d, 0.0))) / den if den > 0 else 0.0
+                costs[fi] = float(np.sum(np.where(use, (g * pr - d) ** 2, 0.0)))
+                gains[fi] = g
+            else:
+                gains[fi], costs[fi] = _free_gain(pred, d, use, gain)
+        return costs, gains
+
+
+def _free_gain(pred: NDArray, d: NDArray, use: NDArray, gain: float | None) -> tuple[float, float]:
+    """(gain, squared residual) when each press's profile is free: for each gain on a fine
+    grid (or the given one), every press takes its best profile; the least total wins."""
+    best = (1.0, math.inf)
+    m = use[None]
+    pp = np.sum(np.where(m, pred * pred, 0.0), axis=2)  # (P, N)
+    pd = np.sum(np.where(m, pred * d[None], 0.0), axis=2)
+    dd = np.sum(np.where(use, d * d, 0.0), axis=1)  # (N,)
+    for g in np.arange(0.5, 2.0001, 0.005) if gain is None else [gain]:
+        r2 = dd[None] - 2 * g * pd + g * g * pp  # (P, N)
+        total = float(np.sum(r2.min(axis=0)))
+        if total < best[1]:
+            best = (float(g), total)
+    return best
+
+
+def calibrated_layout(layout_doc: dict[str, Any], patch: str, cal: Calibration) -> dict[str, Any]:
+    """A copy of the layout document with ``patch``'s model set to the fitted response."""
+    doc = copy.deepcopy(layout_doc)
+    for p in doc.get("patches", []):
+        if p.get("name") == patch:
+            m = p.setdefault("model", {}) or {}
+            m.update(
+                footprint_radius=round(cal.footprint_radius, 7),
+                gain=round(cal.gain, 5),
+                layer_scale=round(cal.layer_scale, 5),
+            )
+            p["model"] = m
+            return doc
+    raise CalibrationError(f"patch {patch!r} not in the layout")
+
+
+def write_bundle(layout_path: Path, patch_name: str, cal: Calibration, out_dir: Path) -> Path:
+    """Write the calibrated layout YAML and the patch's bundle under ``out_dir``."""
+    from tactile_contact.offline.build import build_patch
+    from tactile_contact.offline.bundle import save_bundle
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    doc = yaml.safe_load(layout_path.read_text())
+    new = calibrated_layout(doc, patch_name, cal)
+    lay_out = out_dir / f"{layout_path.stem}.calibrated.yaml"
+    header = (
+        f"# {layout_path.name} with the taxel response fitted by tactile-contact-calibrate\n"
+        f"# ({cal.presses} presses, relative residual {cal.relative_residual:.4f}).\n"
+    )
+    lay_out.write_text(header + yaml.safe_dump(new, sort_keys=False))
+    patch = load_layout(lay_out).patch(patch_name)
+    manifest, arrays = build_patch(patch)
+    manifest["layout_source"] = str(lay_out.resolve())
+    manifest["calibration"] = cal.metadata()
+    return save_bundle(out_dir / patch_name, manifest, arrays)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="tactile-contact-calibrate",
+        description="Fit a patch's taxel response (footprint radius, gain, layer scale) to "
+        "presses of known force and position, and write calibrated bundles.",
+    )
+    ap.add_argument("layout", type=Path, help="patch layout YAML")
+    ap.add_argument("presses", type=Path, help="PRESSES.npz (see the module docstring)")
+    ap.add_argument("-o", "--out", type=Path, required=True, help="bundle directory to write")
+    ap.add_argument("--patch", help="patch the presses belong to (default: the only one)")
+    ap.add_argument("--json", action="store_true", help="print the result as JSON")
+    args = ap.parse_args(argv)
+    try:
+        lay = load_layout(args.layout)
+        if args.patch is None and len(lay.patches) != 1:
+            names = ", ".join(p.name for p in lay.patches)
+            raise CalibrationError(f"{args.layout}: several patches ({names}): pass --patch")
+        patch = lay.patch(args.patch) if args.patch else lay.patches[0]
+        presses = load_presses(args.presses, patch)
+        cal = calibrate(patch, presses, progress=not args.json)
+        path = write_bundle(args.layout, patch.name, cal, args.out)
+    except (CalibrationError, LayoutError, KeyError, OSError) as e:
+        print(f"ERROR: {e}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(cal.metadata(), indent=2))
+    else:
+        print(
+            f"{patch.name}: footprint radius {cal.footprint_radius * 1e3:.2f} mm, "
+            f"gain {cal.gain:.4f}, layer scale {cal.layer_scale:.3f}; "
+            f"residual {cal.residual * 1e6:.3f} µm RMS = {cal.relative_residual:.2%} of the "
+            f"readings (nominal response: {cal.nominal_relative_residual:.2%}); "
+            f"{cal.presses} presses, {cal.readings} readings, {cal.seconds:.0f} s"
+        )
+        print(f"bundle: {path}")
+    return 0
+
+
+def presses_from_bag(bag: Path, patch: PatchLayout, *, min_force: float = 0.05) -> dict:
+    """PRESSES arrays from a recorded calibration session: every ``<patch>/contact_truth``
+    message (the rig's force sensor and position, or the simulator's truth) with a force of
+    at least ``min_force`` [N], paired with the ``<patch>/taxels`` frame of the same stamp.
+
+    Errors (:class:`CalibrationError`) name the bag and what is missing.
+    """
+    from tactile_contact.model.sensor import delta_c_to_compression
+    from tactile_contact.ros.bag import read_messages
+
+    topics = (f"{patch.name}/taxels", f"{patch.name}/contact_truth")
+    try:
+        # Everything, then filtered: the bag's names may or may not carry the leading slash,
+        # and asking for a topic a bag lacks is an error of its own.
+        msgs = [m for m in read_messages(bag) if m[0].lstrip("/") in topics]
+    except Exception as e:  # every unreadable bag is one clear error
+        raise CalibrationError(f"{bag}: cannot read the bag ({e})") from None
+    frames: dict[int, Any] = {}
+    truths = []
+    for topic, _, m in msgs:
+        stamp = int(m.header.stamp.sec) * 1_000_000_000 + int(m.header.stamp.nanosec)
+        if topic.lstrip("/") == topics[0]:
+            frames[stamp] = m
+        elif m.in_contact and m.total_force >= min_force:
+            truths.append((stamp, m))
+    for t, what in ((frames, "taxel frames"), (truths, "pressed contact_truth messages")):
+        if not t:
+            raise CalibrationError(f"{bag}: no {what} on {topics} (topics recorded?)")
+    ids = patch.taxel_ids()
+    s, h = patch.sensor, patch.elastomer.thickness
+    deflection, force, position, names, valid = [], [], [], [], []
+    for stamp, m in truths:
+        f = frames.get(stamp)
+        if f is None:
+            continue
+        where = {int(t): i for i, t in enumerate(f.taxel_ids)}
+        idx = np.array([where.get(int(t), -1) for t in ids])
+        dc = np.asarray(f.delta_c, dtype=np.float64)[np.maximum(idx, 0)]
+        ok = (idx >= 0) & np.isfinite(dc) & (np.asarray(f.status)[np.maximum(idx, 0)] == 0)
+        d = delta_c_to_compression(np.where(ok, dc, 0.0), h, s.epsilon_r, s.area)
+        deflection.append(np.where(ok, d, np.nan))
+        valid.append(ok)
+        force.append(float(m.total_force))
+        position.append((m.center_of_pressure.x, m.center_of_pressure.y))
+        names.append(_indenter_name(m, patch))
+    if len(force) == 0:
+        raise CalibrationError(f"{bag}: no contact_truth stamp matches a taxel frame's stamp")
+    out = {
+        "deflection": np.array(deflection),
+        "force": np.array(force),
+        "position": np.array(position),
+        "valid": np.array(valid),
+    }
+    if all(n is not None for n in names):
+        out["indenter"] = np.array(names)
+    return out
+
+
+def _indenter_name(msg: Any, patch: PatchLayout) -> str | None:
+    """ "hertz:R" / "punch:a" [mm] from a truth message's single contact, else None."""
+    if len(msg.contacts) != 1:
+        return None
+    c = msg.contacts[0]
+    if c.profile == "punch":
+        return f"punch:{c.radius * 1e3:.6g}"
+    if c.profile == "hertz":
+        from tactile_contact.model.indenters import effective_modulus
+
+        e = patch.elastomer
+        radius = 4.0 * effective_modulus(e.young, e.poisson) * c.radius**3 / (3.0 * c.force)
+        return f"hertz:{radius * 1e3:.6g}"
+    return None
+
+
+def main_presses(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="tactile-contact-presses",
+        description="Turn a recorded calibration session (a bag with <patch>/taxels and "
+        "<patch>/contact_truth) into PRESSES.npz for tactile-contact-calibrate.",
+    )
+    ap.add_argument("bag", type=Path, help="rosbag2 folder (MCAP or sqlite3)")
+    ap.add_argument("layout", type=Path, help="patch layout YAML")
+    ap.add_argument("-o", "--out", type=Path, required=True, help="PRESSES.npz to write")
+    ap.add_argument("--patch", help="patch (default: the only one)")
+    ap.add_argument("--min-force", type=float, default=0.05, help="least force kept [N]")
+    args = ap.parse_args(argv)
+    try:
+        lay = load_layout(args.layout)
+        patch = lay.patch(args.patch) if args.patch else lay.patches[0]
+        arrays = presses_from_bag(args.bag, patch, min_force=args.min_force)
+        np.savez(args.out, **arrays)
+    except (CalibrationError, LayoutError, KeyError, OSError) as e:
+        print(f"ERROR: {e}", file=sys.stderr)
+        return 1
+    print(f"{args.out}: {len(arrays['force'])} presses from {args.bag}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
