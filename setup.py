@@ -40,7 +40,7 @@ setup(
             "tactile-contact-build = tactile_contact.offline.build:main",
             "tactile-contact = tactile_contact.ros.cli:main",
             "tactile-contact-calibrate = tactile_contact.offline.calibrate:main",
-            "tactile-contact-presses = tactile_contact.offline.calibrate:main_presses",
+            "tactile-contact-presses = tactile_contact.offline.presses:main_presses",
         ],
     },
 )

@@ -1,0 +1,264 @@
+"""Presses of known force and position: the file ``tactile-contact-calibrate`` reads, and the
+``tactile-contact-presses`` command that makes it from a recorded session.
+
+PRESSES.npz: ``deflection`` (N, K) compressions [m] in the bundle's taxel order (the quantity
+``Reconstructor.solve_deflection`` takes) or ``delta_c`` (N, K) ΔC in CDC counts (converted
+with the layout's sensor model); ``force`` (N,) [N]; ``position`` (N, 2) [m], patch frame;
+optionally ``indenter`` (N,) strings and ``valid`` (N, K) bool.
+
+:func:`load_presses` checks such a file for a patch (every problem one
+:class:`CalibrationError` naming the file and the key); :func:`presses_from_bag` pairs a bag's
+``<patch>/contact_truth`` messages with its ``<patch>/taxels`` frames. No ROS import (the bag is
+read with the ``rosbags`` library).
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from tactile_contact.model.indenters import FlatPunch, HertzSphere, Indenter
+from tactile_contact.model.layout import LayoutError, PatchLayout, load_layout
+
+#: Indenters a press may name (the paper's set; the simulator and bench use the same).
+INDENTERS: dict[str, Indenter] = {
+    "sphere 12 mm": HertzSphere(6e-3),
+    "sphere 6 mm": HertzSphere(3e-3),
+    "cylinder 12 mm": FlatPunch(6e-3),
+    "cylinder 3 mm": FlatPunch(1.5e-3),
+}
+#: Fewest presses accepted: three parameters, and a press informs mostly its own taxels.
+MIN_PRESSES = 8
+
+
+class CalibrationError(ValueError):
+    """A presses file or calibration that cannot be used; the message names the file/key."""
+
+
+@dataclass(frozen=True)
+class Presses:
+    """Validated presses: deflection (N, K) [m], force (N,) [N], position (N, 2) [m],
+    indenter (N,) names or None, valid (N, K) bool."""
+
+    deflection: NDArray[np.float64]
+    force: NDArray[np.float64]
+    position: NDArray[np.float64]
+    indenter: tuple[str, ...] | None
+    valid: NDArray[np.bool_]
+
+
+def indenter_named(name: str) -> Indenter:
+    """The indenter a press names: a key of INDENTERS, or "hertz:R" / "punch:a" (R, a in mm)."""
+    key = str(name).strip().lower()
+    if key in INDENTERS:
+        return INDENTERS[key]
+    m = re.fullmatch(r"(hertz|sphere|punch|cylinder)\s*:\s*([0-9.]+)", key)
+    if m:
+        size = float(m.group(2)) * 1e-3
+        return HertzSphere(size) if m.group(1) in ("hertz", "sphere") else FlatPunch(size)
+    known = ", ".join(sorted(INDENTERS))
+    raise CalibrationError(f"unknown indenter {name!r}: expected one of {known}, or hertz:R_mm")
+
+
+def load_presses(path: str | Path, patch: PatchLayout) -> Presses:
+    """Read and check PRESSES.npz for ``patch`` (errors name the file and the key)."""
+    p = Path(path)
+    try:
+        z = np.load(p, allow_pickle=False)
+        data = {k: z[k] for k in z.files}
+    except FileNotFoundError:
+        raise CalibrationError(f"{p}: no such file") from None
+    except Exception as e:  # every unreadable file is one clear error
+        raise CalibrationError(f"{p}: not a readable .npz file ({e})") from None
+    k = len(patch.taxel_xy())
+
+    def need(key: str) -> NDArray:
+        if key not in data:
+            raise CalibrationError(f"{p}: missing key {key!r} (keys: {sorted(data)})")
+        return data[key]
+
+    force = np.asarray(need("force"), dtype=np.float64)
+    if force.ndim != 1:
+        raise CalibrationError(f"{p}: 'force' must have shape (N,), got {force.shape}")
+    n = len(force)
+    if "deflection" in data:
+        d = np.asarray(data["deflection"], dtype=np.float64)
+        src = "deflection"
+    elif "delta_c" in data:
+        counts = np.asarray(data["delta_c"], dtype=np.float64)
+        from tactile_contact.model.sensor import delta_c_to_compression, value_count_farad
+
+        s = patch.sensor
+        if counts.shape == (n, k):
+            dc = counts * value_count_farad(s.farad_per_count, s.shift)
+            d = delta_c_to_compression(
+                np.where(np.isfinite(dc), dc, 0.0), patch.elastomer.thickness, s.epsilon_r, s.area
+            )
+            d = np.where(np.isfinite(counts), d, np.nan)
+        else:
+            d = counts
+        src = "delta_c"
+    else:
+        raise CalibrationError(f"{p}: needs 'deflection' [m] or 'delta_c' [counts] (N, K)")
+    if d.shape != (n, k):
+        raise CalibrationError(
+            f"{p}: {src!r} must have shape (N, K) = ({n}, {k}) for patch {patch.name!r} "
+            f"(N from 'force', K its taxels), got {d.shape}"
+        )
+    pos = np.asarray(need("position"), dtype=np.float64)
+    if pos.shape != (n, 2):
+        raise CalibrationError(f"{p}: 'position' must have shape ({n}, 2) [m], got {pos.shape}")
+    valid = np.ones((n, k), bool)
+    if "valid" in data:
+        valid = np.asarray(data["valid"], dtype=bool)
+        if valid.shape != (n, k):
+            raise CalibrationError(f"{p}: 'valid' must have shape ({n}, {k}), got {valid.shape}")
+    for key, v in (("force", force), ("position", pos)):
+        if not np.all(np.isfinite(v)):
+            bad = np.argwhere(~np.isfinite(v))[0]
+            raise CalibrationError(f"{p}: {key!r} holds NaN or inf (first at index {bad.tolist()})")
+    if not np.any(np.isfinite(d) & valid):
+        raise CalibrationError(f"{p}: {src!r} holds no finite reading")
+    valid &= np.isfinite(d)
+    d = np.where(valid, d, 0.0)
+    if np.any(force <= 0):
+        raise CalibrationError(f"{p}: 'force' must be > 0 N (press {int(np.argmin(force))})")
+    if force.max() > 100.0:
+        raise CalibrationError(
+            f"{p}: 'force' up to {force.max():g} N: expected newtons (millinewtons given?)"
+        )
+    span = np.abs(patch.taxel_xy()).max() + 0.05
+    if np.abs(pos).max() > span:
+        raise CalibrationError(
+            f"{p}: 'position' up to {np.abs(pos).max():g}: expected metres in the patch frame "
+            "(millimetres given?)"
+        )
+    h = patch.elastomer.thickness
+    if np.abs(d).max() >= h:
+        raise CalibrationError(
+            f"{p}: {src!r} up to {np.abs(d).max():g} m, not below the layer thickness {h:g} m: "
+            "expected metres (micrometres given?)"
+        )
+    if n < MIN_PRESSES:
+        raise CalibrationError(f"{p}: {n} presses; at least {MIN_PRESSES} are needed")
+    names = None
+    if "indenter" in data:
+        raw = np.asarray(data["indenter"])
+        if raw.shape != (n,):
+            raise CalibrationError(f"{p}: 'indenter' must have shape ({n},), got {raw.shape}")
+        names = tuple(str(x) for x in raw)
+        for x in names:
+            try:
+                indenter_named(x)
+            except CalibrationError as e:
+                raise CalibrationError(f"{p}: 'indenter': {e}") from None
+    return Presses(d, force, pos, names, valid)
+
+
+def presses_from_bag(bag: Path, patch: PatchLayout, *, min_force: float = 0.05) -> dict:
+    """PRESSES arrays from a recorded calibration session: every ``<patch>/contact_truth``
+    message (the rig's force sensor and position, or the simulator's truth) with a force of
+    at least ``min_force`` [N], paired with the ``<patch>/taxels`` frame of the same stamp.
+
+    Errors (:class:`CalibrationError`) name the bag and what is missing.
+    """
+    from tactile_contact.model.sensor import delta_c_to_compression
+    from tactile_contact.ros.bag import read_messages
+
+    topics = (f"{patch.name}/taxels", f"{patch.name}/contact_truth")
+    try:
+        # Everything, then filtered: the bag's names may or may not carry the leading slash,
+        # and asking for a topic a bag lacks is an error of its own.
+        msgs = [m for m in read_messages(bag) if m[0].lstrip("/") in topics]
+    except Exception as e:  # every unreadable bag is one clear error
+        raise CalibrationError(f"{bag}: cannot read the bag ({e})") from None
+    frames: dict[int, Any] = {}
+    truths = []
+    for topic, _, m in msgs:
+        stamp = int(m.header.stamp.sec) * 1_000_000_000 + int(m.header.stamp.nanosec)
+        if topic.lstrip("/") == topics[0]:
+            frames[stamp] = m
+        elif m.in_contact and m.total_force >= min_force:
+            truths.append((stamp, m))
+    for t, what in ((frames, "taxel frames"), (truths, "pressed contact_truth messages")):
+        if not t:
+            raise CalibrationError(f"{bag}: no {what} on {topics} (topics recorded?)")
+    ids = patch.taxel_ids()
+    s, h = patch.sensor, patch.elastomer.thickness
+    deflection, force, position, names, valid = [], [], [], [], []
+    for stamp, m in truths:
+        f = frames.get(stamp)
+        if f is None:
+            continue
+        where = {int(t): i for i, t in enumerate(f.taxel_ids)}
+        idx = np.array([where.get(int(t), -1) for t in ids])
+        dc = np.asarray(f.delta_c, dtype=np.float64)[np.maximum(idx, 0)]
+        ok = (idx >= 0) & np.isfinite(dc) & (np.asarray(f.status)[np.maximum(idx, 0)] == 0)
+        d = delta_c_to_compression(np.where(ok, dc, 0.0), h, s.epsilon_r, s.area)
+        deflection.append(np.where(ok, d, np.nan))
+        valid.append(ok)
+        force.append(float(m.total_force))
+        position.append((m.center_of_pressure.x, m.center_of_pressure.y))
+        names.append(_indenter_name(m, patch))
+    if len(force) == 0:
+        raise CalibrationError(f"{bag}: no contact_truth stamp matches a taxel frame's stamp")
+    out = {
+        "deflection": np.array(deflection),
+        "force": np.array(force),
+        "position": np.array(position),
+        "valid": np.array(valid),
+    }
+    if all(n is not None for n in names):
+        out["indenter"] = np.array(names)
+    return out
+
+
+def _indenter_name(msg: Any, patch: PatchLayout) -> str | None:
+    """ "hertz:R" / "punch:a" [mm] from a truth message's single contact, else None."""
+    if len(msg.contacts) != 1:
+        return None
+    c = msg.contacts[0]
+    if c.profile == "punch":
+        return f"punch:{c.radius * 1e3:.6g}"
+    if c.profile == "hertz":
+        from tactile_contact.model.indenters import effective_modulus
+
+        e = patch.elastomer
+        radius = 4.0 * effective_modulus(e.young, e.poisson) * c.radius**3 / (3.0 * c.force)
+        return f"hertz:{radius * 1e3:.6g}"
+    return None
+
+
+def main_presses(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="tactile-contact-presses",
+        description="Turn a recorded calibration session (a bag with <patch>/taxels and "
+        "<patch>/contact_truth) into PRESSES.npz for tactile-contact-calibrate.",
+    )
+    ap.add_argument("bag", type=Path, help="rosbag2 folder (MCAP or sqlite3)")
+    ap.add_argument("layout", type=Path, help="patch layout YAML")
+    ap.add_argument("-o", "--out", type=Path, required=True, help="PRESSES.npz to write")
+    ap.add_argument("--patch", help="patch (default: the only one)")
+    ap.add_argument("--min-force", type=float, default=0.05, help="least force kept [N]")
+    args = ap.parse_args(argv)
+    try:
+        lay = load_layout(args.layout)
+        patch = lay.patch(args.patch) if args.patch else lay.patches[0]
+        arrays = presses_from_bag(args.bag, patch, min_force=args.min_force)
+        np.savez(args.out, **arrays)
+    except (CalibrationError, LayoutError, KeyError, OSError) as e:
+        print(f"ERROR: {e}", file=sys.stderr)
+        return 1
+    print(f"{args.out}: {len(arrays['force'])} presses from {args.bag}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main_presses())
