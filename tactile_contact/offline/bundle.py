@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-FORMAT = "tactile_contact.offline.bundle"
+FORMAT = "tactile_contact.bundle"
 SCHEMA_VERSION = 2
 MANIFEST = "manifest.json"
 
