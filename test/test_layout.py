@@ -139,7 +139,7 @@ M = ("patches", 0, "modules")
             (*M, 3, "type"),
             "foo",
             "patches[0].modules[3].type: unknown module type 'foo' (known: "
-            "icub_v2_10pad, roboskin12)",
+            "icub_palm_left_0, icub_palm_left_1, ",
         ),
         ((*M, 2, "triangle"), 1, "patches[0].modules[2]: duplicate CAN address board 0 triangle 1"),
         ((*M, 2, "position"), [0.0003, 0.0], "patches[0].modules[4]: overlapping taxels"),

@@ -26,6 +26,7 @@ import yaml
 from numpy.typing import NDArray
 
 from tactile_contact.model.modules import MODULE_TYPES, ModuleType, place_channels, taxel_id
+from tactile_contact.model.surface import SHAPES, Surface
 
 SCHEMA_VERSION = 1
 MODELS = ("love", "boussinesq")
@@ -90,6 +91,8 @@ class SensorSpec:
         farad_per_count: capacitance of one CDC count [F].
         no_load: 8-bit reading with no load [counts].
         shift: right shift applied by the firmware to the CDC value [bits].
+        cdc_offset: the CDC offset the boards are configured with (SET_TRIANG_CFG) [CDC
+            counts], when the layout says (an imported robot skin spec); None: the driver's.
     """
 
     epsilon_r: float = 4.37
@@ -97,6 +100,7 @@ class SensorSpec:
     farad_per_count: float = 0.32e-15
     no_load: int = 240
     shift: int = 2
+    cdc_offset: int | None = None
 
     @property
     def area(self) -> float:
@@ -199,7 +203,9 @@ class SolverSpec:
 
 @dataclass(frozen=True)
 class PatchLayout:
-    """One patch: modules plus the physical and numerical parameters of its reconstruction."""
+    """One patch: modules plus the physical and numerical parameters of its reconstruction;
+    ``surface``: where the flat patch lies on the robot (None: nowhere known; see
+    :mod:`tactile_contact.model.surface`)."""
 
     name: str
     frame_id: str
@@ -209,6 +215,7 @@ class PatchLayout:
     grid: GridSpec = field(default_factory=GridSpec)
     model: ModelSpec = field(default_factory=ModelSpec)
     solver: SolverSpec = field(default_factory=SolverSpec)
+    surface: Surface | None = None
 
     def _channels(self, valid_only: bool) -> list[tuple[ModuleSpec, int, NDArray[np.float64]]]:
         out = []
@@ -260,6 +267,14 @@ class PatchLayout:
             dict(m, position=list(m["position"]), disabled_channels=list(m["disabled_channels"]))
             for m in d["modules"]
         ]
+        # Keys added after version 1 appear only when set, so that the hashes of bundles
+        # built before them stay valid.
+        if d["sensor"]["cdc_offset"] is None:
+            del d["sensor"]["cdc_offset"]
+        if self.surface is None:
+            del d["surface"]
+        else:
+            d["surface"] = self.surface.to_dict()
         return d
 
     @property
@@ -428,7 +443,19 @@ def _parse_module(c: _Ctx, raw: Any, path: str) -> ModuleSpec:
 
 def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
     d = c.mapping(
-        raw, path, ("name", "frame_id", "modules", "elastomer", "sensor", "grid", "model", "solver")
+        raw,
+        path,
+        (
+            "name",
+            "frame_id",
+            "modules",
+            "elastomer",
+            "sensor",
+            "grid",
+            "model",
+            "solver",
+            "surface",
+        ),
     )
     name = d.get("name")
     if not isinstance(name, str) or not name or not all(ch.isalnum() or ch in "_-" for ch in name):
@@ -484,7 +511,7 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
     s = c.mapping(
         d.get("sensor"),
         f"{path}.sensor",
-        ("epsilon_r", "taxel_radius", "area", "farad_per_count", "no_load", "shift"),
+        ("epsilon_r", "taxel_radius", "area", "farad_per_count", "no_load", "shift", "cdc_offset"),
     )
     sp = f"{path}.sensor"
     if "taxel_radius" in s and "area" in s:
@@ -499,6 +526,7 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
         farad_per_count=c.number(s, "farad_per_count", sp, 0.32e-15, lo=0.0, lo_open=True),
         no_load=c.number(s, "no_load", sp, 240, lo=1, hi=255, integer=True),
         shift=c.number(s, "shift", sp, 2, lo=0, hi=15, integer=True),
+        cdc_offset=c.number(s, "cdc_offset", sp, None, lo=0, hi=0xFFFF, integer=True),
     )
 
     g = c.mapping(
@@ -535,9 +563,49 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
         refine=c.choice(so, "refine", sop, "round", ("round", "none")),
         max_contacts=c.number(so, "max_contacts", sop, 3, lo=1, hi=8, integer=True),
     )
-    patch = PatchLayout(str(name), frame, modules, elast, sensor, grid, model, solver)
+    surface = _parse_surface(c, d.get("surface"), f"{path}.surface")
+    patch = PatchLayout(str(name), frame, modules, elast, sensor, grid, model, solver, surface)
     _check_patch(c, patch, path)
     return patch
+
+
+def _parse_surface(c: _Ctx, raw: Any, path: str) -> Surface | None:
+    """The optional ``surface`` of a patch (docs/layout.md)."""
+    if raw is None:
+        return None
+    d = c.mapping(raw, path, ("frame_id", "shape", "origin", "orientation", "radius"))
+    frame = d.get("frame_id")
+    if not isinstance(frame, str) or not frame:
+        raise c.err(f"{path}.frame_id", f"expected the robot link frame's name, got {frame!r}")
+    if "shape" not in d:
+        raise c.err(f"{path}.shape", f"missing required key ({' or '.join(SHAPES)})")
+    shape = c.choice(d, "shape", path, "", SHAPES)
+
+    def vector(key: str, n: int, what: str) -> tuple[float, ...]:
+        v = d.get(key)
+        if (
+            not isinstance(v, list)
+            or len(v) != n
+            or not all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+                for x in v
+            )
+        ):
+            raise c.err(f"{path}.{key}", f"expected {what}, got {v!r}")
+        return tuple(float(x) for x in v)
+
+    origin = vector("origin", 3, "[x, y, z] in metres")
+    quat = vector("orientation", 4, "a unit quaternion [x, y, z, w]")
+    norm = math.sqrt(sum(x * x for x in quat))
+    if abs(norm - 1.0) > 1e-3:
+        raise c.err(f"{path}.orientation", f"not a unit quaternion (norm {norm:.6g})")
+    radius = None
+    if shape == "cylinder":
+        radius = c.number(d, "radius", path, _REQUIRED, lo=0.0, lo_open=True, hi=10.0)
+    elif "radius" in d:
+        raise c.err(f"{path}.radius", "only a cylinder has a radius (shape is plane)")
+    quat = tuple(x / norm for x in quat)
+    return Surface(frame, shape, origin, quat, radius)  # type: ignore[arg-type]
 
 
 def _check_patch(c: _Ctx, patch: PatchLayout, path: str) -> None:

@@ -65,9 +65,49 @@ ICUB_V2_10PAD = ModuleType(
     pitch_mm=6.533,
 )
 
+# The iCub V2 palm (skinGui types palmL / palmR): 48 channels on one CAN board, sent as its
+# triangles 8..11 (12 channels each), so it is four module types placed at one pose. Channel
+# centres from icub-main src/tools/iCubSkinGui/plugin/include/PalmLeft.h / PalmRight.h at
+# 1 mm per unit (their drawing scales by 1.2 more; the l_hand/r_hand positions files match
+# these at 1.0009 mm per unit, 0.1 mm rms, except palm channel 25, 2.8 mm off). Thermal pads:
+# palm channels 11, 23, 35, 43. Seen from outside the hand: the left palm as drawn, the right
+# palm mirror-imaged (x → −x; the GUI draws both alike). Origin: the drawing's origin, at the
+# palm's edge next to channel 29.
+_PALM_LEFT = (
+    ((32, -3.5), (32, 1), (27, -3.5), (27, 1), (37, 1), (42, 0),
+     (27, 6), (32, 6), (37, 6), (42, 5.5), (47, 4.5), (51.7, 4)),
+    ((47.5, -18), (38, -14), (32, -9), (27, -9), (37, -9), (37.5, -4.5),
+     (43, -16), (42, -10.5), (42, -5.5), (46.5, -8), (47, -13), (43.5, -20)),
+    ((21.5, -4), (14.5, -3.5), (11.5, 1), (6.5, 1), (6.5, 6), (1.5, 6.5),
+     (11.5, 6), (16.5, 6), (16.5, 1), (21.5, 6), (21.5, 1), (9.5, -2)),
+    ((38, -19.5), (43, -26), (38, -24.5), (40, -29.5), (33, -24.5), (35, -29),
+     (33, -19.5), (37, -32.5), (28, -24.5), (28, -19.5), (28, -14.5), (33, -14.5)),
+)
+_PALM_RIGHT = (
+    ((-47, 4.5), (-42, 5.5), (-37, 6), (-32, 6), (-37, 1), (-42, 0),
+     (-27, 6), (-27, 1), (-32, 1), (-27, -3.5), (-32, -3.5), (-51.7, 4)),
+    ((-47.5, -18), (-47, -13), (-46.5, -8), (-42, -5.5), (-37.5, -4.5), (-37, -9),
+     (-43, -16), (-42, -10.5), (-27, -9), (-32, -9), (-38, -14), (-43.5, -20)),
+    ((-16.5, 6), (-11.5, 6), (-6.5, 6), (-1.5, 6.5), (-11.5, 1), (-6.5, 1),
+     (-14.5, -3.5), (-21.5, 6), (-16.5, 1), (-21.5, 1), (-21.5, -4), (-9.5, -2)),
+    ((-28, -19.5), (-28, -24.5), (-33, -24.5), (-35, -29), (-40, -29.5), (-38, -24.5),
+     (-33, -19.5), (-37, -32.5), (-43, -26), (-38, -19.5), (-33, -14.5), (-28, -14.5)),
+)
+_PALM_PADS = (11, 11, 11, 7)  # per part: the channel that is a thermal pad
 # fmt: on
 
-MODULE_TYPES: dict[str, ModuleType] = {m.name: m for m in (ROBOSKIN12, ICUB_V2_10PAD)}
+PALM_TYPES = tuple(
+    ModuleType(
+        name=f"icub_palm_{side}_{k}",
+        channel_xy_mm=tuple((float(x), float(y)) for x, y in xy),
+        taxel=tuple(ch != _PALM_PADS[k] for ch in range(CHANNELS_PER_MODULE)),
+        pitch_mm=5.0,
+    )
+    for side, parts in (("left", _PALM_LEFT), ("right", _PALM_RIGHT))
+    for k, xy in enumerate(parts)
+)
+
+MODULE_TYPES: dict[str, ModuleType] = {m.name: m for m in (ROBOSKIN12, ICUB_V2_10PAD, *PALM_TYPES)}
 
 
 def module_type(name: str) -> ModuleType:
