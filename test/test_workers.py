@@ -1,0 +1,126 @@
+"""The split of a skin over reconstruction workers (tactile_contact.ros.workers, no ROS).
+
+Checked against an independent reference: for small skins, every possible split is tried and
+the greedy split's busiest worker is compared with the best one's (the 4/3 bound of the
+longest-processing-time rule).
+"""
+
+from __future__ import annotations
+
+import itertools
+import random
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from tactile_contact.ros.workers import (
+    SILENT_AFTER_S,
+    Roster,
+    WorkerInfo,
+    assign_patches,
+    default_workers,
+    worker_patches,
+)
+
+names = st.text(alphabet="abcdefghij_0123456789", min_size=1, max_size=8)
+skins = st.dictionaries(names, st.integers(1, 5000), min_size=0, max_size=40)
+
+
+def _loads(taxels: dict[str, int], split: list[tuple[str, ...]]) -> list[int]:
+    return [sum(taxels[p] for p in names) for names in split]
+
+
+@given(skins, st.integers(1, 8))
+def test_every_patch_goes_to_exactly_one_worker(taxels: dict[str, int], n: int) -> None:
+    split = assign_patches(taxels, n)
+    assert len(split) == n
+    flat = [p for names in split for p in names]
+    assert sorted(flat) == sorted(taxels)  # each once, none lost
+    assert all(list(names) == sorted(names) for names in split)
+
+
+@given(skins, st.integers(1, 8), st.randoms(use_true_random=False))
+def test_the_split_does_not_depend_on_the_order_patches_are_listed(
+    taxels: dict[str, int], n: int, rnd: random.Random
+) -> None:
+    items = list(taxels.items())
+    rnd.shuffle(items)
+    assert assign_patches(dict(items), n) == assign_patches(taxels, n)
+    # every worker computes its own share alone and they agree
+    assert [worker_patches(dict(items), k, n) for k in range(n)] == assign_patches(taxels, n)
+
+
+@given(skins.filter(bool), st.integers(1, 8))
+def test_balanced_within_one_patch_of_the_mean(taxels: dict[str, int], n: int) -> None:
+    loads = _loads(taxels, assign_patches(taxels, n))
+    biggest = max(taxels.values())
+    assert max(loads) <= sum(loads) / n + biggest
+    if len(taxels) >= n:
+        assert min(loads) > 0  # nobody idles while there is work for everyone
+
+
+@given(st.dictionaries(names, st.integers(1, 400), min_size=1, max_size=7), st.integers(2, 3))
+def test_within_four_thirds_of_the_best_split(taxels: dict[str, int], n: int) -> None:
+    best = min(
+        max(sum(taxels[p] for p, w in zip(taxels, owners, strict=True) if w == k) for k in range(n))
+        for owners in itertools.product(range(n), repeat=len(taxels))
+    )
+    assert max(_loads(taxels, assign_patches(taxels, n))) <= 4 / 3 * best + 1e-9
+
+
+def test_a_robot_skin_splits_evenly() -> None:
+    # iCub-like part sizes (taxels): 2 forearms of 24 modules, 2 upper arms of 40, ...
+    parts = {"forearm": 240, "upper_arm": 400, "upper_leg": 680, "lower_leg": 380, "torso": 440}
+    taxels = {f"{side}_{p}": n for side in "lr" for p, n in parts.items()}
+    loads = _loads(taxels, assign_patches(taxels, 2))
+    assert loads == [2140, 2140]
+    loads = _loads(taxels, assign_patches(taxels, 3))
+    assert max(loads) - min(loads) <= 240
+
+
+def test_bad_arguments_are_named() -> None:
+    with pytest.raises(ValueError, match="workers must be an integer >= 1, got 0"):
+        assign_patches({"a": 1}, 0)
+    with pytest.raises(ValueError, match="patch 'a': taxel count must be an integer >= 1"):
+        assign_patches({"a": 0}, 2)
+    with pytest.raises(ValueError, match=r"worker index must be within 0\.\.1, got 2"):
+        worker_patches({"a": 1}, 2, 2)
+
+
+def test_default_workers_is_the_cores_at_most_one_per_patch() -> None:
+    import os
+
+    cores = len(os.sched_getaffinity(0))
+    assert default_workers() == cores
+    assert default_workers(1) == 1
+    assert default_workers(1000) == cores
+
+
+def _info(name: str, patches: tuple[str, ...], started: float) -> WorkerInfo:
+    return WorkerInfo(name, 0, 2, patches, started)
+
+
+def test_a_silent_worker_is_reported_and_a_heard_one_is_not() -> None:
+    roster = Roster()
+    roster.heard(_info("host/1", ("a", "b"), 10.0), now=100.0)
+    roster.heard(_info("host/2", ("c",), 11.0), now=100.0)
+    roster.heard(_info("host/2", ("c",), 11.0), now=100.4)
+    assert roster.silent(100.0 + SILENT_AFTER_S) == []
+    assert [w.worker for w in roster.silent(100.0 + SILENT_AFTER_S + 0.01)] == ["host/1"]
+    assert [w.worker for w in roster.forget(5.0, now=106.0)] == ["host/1", "host/2"]
+    assert roster.workers == {}
+
+
+def test_a_patch_claimed_twice_is_served_by_the_older_claim() -> None:
+    roster = Roster()
+    old = _info("a/1", ("p1", "p2"), 10.0)
+    new = _info("b/7", ("p2", "p3"), 12.0)
+    roster.heard(old, now=50.0)
+    roster.heard(new, now=50.0)
+    twice = roster.served_twice(50.1)
+    assert list(twice) == ["p2"] and [w.worker for w in twice["p2"]] == ["a/1", "b/7"]
+    assert {p: w.worker for p, w in roster.taken(("p2", "p3"), new, 50.1).items()} == {"p2": "a/1"}
+    assert roster.taken(("p1", "p2"), old, 50.1) == {}  # the older one keeps serving
+    # the older one dies: its patch is nobody's, the younger may serve it
+    assert roster.taken(("p2", "p3"), new, 50.0 + SILENT_AFTER_S + 0.1) == {}
