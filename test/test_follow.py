@@ -41,9 +41,8 @@ def truth(bundle):
 
 def counts(r: Reconstructor, delta: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """The compressions [m] of 8-bit readings of ``delta`` [m] (0.15 count converter noise)."""
-    c, h = r._counts_per_metre_h, r._thickness
-    n = np.rint(c * delta / (h - delta) + 0.15 * rng.normal(size=delta.shape))
-    return n * h / (c + n)
+    n = np.rint(r.readings.counts(delta) + 0.15 * rng.normal(size=delta.shape))
+    return r.readings.from_counts(n)
 
 
 def solve_all(r: Reconstructor, frames: list[np.ndarray]) -> list:

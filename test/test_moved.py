@@ -72,3 +72,24 @@ def test_public_api_names() -> None:
     assert ContactResult.__name__ == "ContactResult" and Contact.__name__ == "Contact"
     with pytest.raises(AttributeError):
         tactile_contact.NoSuchThing  # noqa: B018
+
+
+def test_file_formats_keep_their_names() -> None:
+    """The on-disk format names are the files', not the modules': bundles built before the
+    move (manifest format "tactile_contact.bundle") still load."""
+    from tactile_contact.offline import bundle
+
+    assert bundle.FORMAT == "tactile_contact.bundle"
+
+
+def test_names_of_the_split_reconstruction_module_still_resolve() -> None:
+    """Constants and helpers that tactile_contact.reconstruction held before its stages got
+    modules of their own resolve from there, with a warning naming the new module."""
+    from tactile_contact.inverse import contact_fit, grid_fallback, reconstruction
+
+    with pytest.warns(DeprecationWarning, match="grid_fallback"):
+        assert reconstruction.SOLVER_CACHE_SIZE == grid_fallback.SOLVER_CACHE_SIZE
+    with pytest.warns(DeprecationWarning, match="contact_fit"):
+        assert reconstruction.FOLLOW_FRAMES == contact_fit.FOLLOW_FRAMES
+    with pytest.raises(AttributeError, match="no_such_name"):
+        reconstruction.no_such_name  # noqa: B018

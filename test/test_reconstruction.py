@@ -229,7 +229,7 @@ def test_invalid_taxels_are_ignored(default, indentation):
 def test_flickering_taxels_keep_the_solver_cache_bounded(tmp_path_factory, indentation):
     """A different taxel out in every frame: the operators kept per set of valid taxels stay
     at SOLVER_CACHE_SIZE, and a set met again after eviction gives the same result."""
-    from tactile_contact.inverse.reconstruction import SOLVER_CACHE_SIZE
+    from tactile_contact.inverse.grid_fallback import SOLVER_CACHE_SIZE
 
     path, patch = _bundle(tmp_path_factory, "flicker")
     r = Reconstructor.from_bundle(path, patch)
@@ -241,7 +241,7 @@ def test_flickering_taxels_keep_the_solver_cache_bounded(tmp_path_factory, inden
         valid = np.ones(72, bool)
         valid[out] = False
         res = r.solve_deflection(delta, valid)
-        assert len(r._solvers) <= SOLVER_CACHE_SIZE
+        assert len(r.grid.solvers) <= SOLVER_CACHE_SIZE
         if out in firsts:
             assert res.total_force == pytest.approx(firsts[out], rel=1e-9)
         firsts.setdefault(out, res.total_force)
@@ -270,9 +270,9 @@ def test_idle_8bit_deflections_are_no_contact(default):
     counts = np.rint(rng.normal(0.0, 0.15, (3000, 72)))
     counts[counts.any(axis=1) == 0, 5] = 1.0  # every frame carries a count somewhere
     p = r.params
-    d = delta_c_to_compression(counts * r._lsb, p["thickness"], p["epsilon_r"], p["area"])
-    assert r._on_count_lattice(d[0], np.ones(72, bool))
-    assert not r._on_count_lattice(d[0] * 1.05, np.ones(72, bool))
+    d = delta_c_to_compression(counts * r.readings.lsb, p["thickness"], p["epsilon_r"], p["area"])
+    assert r.readings.on_count_lattice(d[0], np.ones(72, bool))
+    assert not r.readings.on_count_lattice(d[0] * 1.05, np.ones(72, bool))
     assert sum(r.solve_deflection(x).in_contact for x in d) == 0
 
 

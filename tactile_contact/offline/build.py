@@ -151,7 +151,7 @@ def free_inverse(
 ) -> tuple[NDArray, float]:
     """(N, K) free inverse operator of the patch's method and the absolute λ used
     (``chosen``: λ and rank from :func:`regularisation`, computed here when None)."""
-    from tactile_contact.inverse.reconstruction import regularised_inverse
+    from tactile_contact.inverse.grid_fallback import regularised_inverse
 
     lam, rank = chosen if chosen is not None else regularisation(patch, c, reg)
     return regularised_inverse(c, patch.solver.method, lam, reg, patch.solver.rcond, rank), lam

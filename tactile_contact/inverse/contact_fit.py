@@ -1,0 +1,176 @@
+"""Stage 3 of a frame: round contacts fitted straight to the readings, followed frame to frame.
+
+One, or up to ``max_contacts`` separate, round contacts (punch- or Hertz-like, centre, radius,
+force) are fitted to the readings through the radial responses tabulated at build time
+(:class:`tactile_contact.inverse.contacts.ContactFitter`, a compiled multi-start least-squares
+search from the detector's best place). They are kept when they explain the readings to within
+noise and model error (a χ² test on the least-squares fit); quantised readings (whole 8-bit
+counts) then report the posterior mean over the contact's size/centre/force valley instead of
+the least-squares point.
+
+*Following* (:class:`Followed`): a single contact found in the last frame is refitted alone
+from where it was, and the search runs only when that fit explains the readings clearly worse
+than the last search did. The state (the contact followed) is the caller's: it passes the last
+frame's and gets this frame's back. No ROS import.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from tactile_contact.inverse.contacts import ContactFitter, chi2, chi2_limit
+from tactile_contact.inverse.readings import Frame
+from tactile_contact.inverse.round_contact import (
+    RoundFit,
+    RoundTables,
+    follow_round_contact,
+    posterior_contact,
+)
+
+#: A followed contact is searched afresh after this many frames (0.5 s at 50 Hz): a followed
+#: fit stays in the basin it started in, and the full search may have found a deeper one.
+#: (Load-bench frames: the same force and CoP errors for 10, 25 and 50.)
+FOLLOW_FRAMES = 25
+#: A followed fit whose χ² exceeds that of the last full search by more than this is searched
+#: afresh. The χ² test alone is lenient (most 8-bit readings of a small contact are exact
+#: zeros: χ² ≈ 10 against a limit of 132 for 72 taxels), and a followed fit at χ² 74 where the
+#: search found 9 reported 0.5 N for 1.5 N.
+FOLLOW_SLACK = 10.0
+#: ... plus this share of that χ²: a strong press misfits by model error (χ² 65-100 on the
+#: load bench's 2 N sphere), which changes by 10-30 from frame to frame as it slides; with
+#: the fixed slack alone, 9 % of its frames were searched again for nothing.
+FOLLOW_SLACK_SHARE = 0.3
+#: Relative model error [-] the χ² test allows on top of the noise (the tables against a
+#: finer forward model: 1–4 %).
+ROUND_MODEL_ERROR = 0.05
+
+
+@dataclass(frozen=True)
+class Followed:
+    """A single contact followed from frame to frame.
+
+    Attributes:
+        fit: its least-squares fit in the last frame.
+        misfit: :func:`tactile_contact.inverse.contacts.chi2` of the fit that the last full
+            search found; a followed fit may exceed it by FOLLOW_SLACK + FOLLOW_SLACK_SHARE of
+            it.
+        age: frames followed since that search.
+    """
+
+    fit: RoundFit
+    misfit: float
+    age: int
+
+    @property
+    def current(self) -> bool:
+        """Young enough to be followed (FOLLOW_FRAMES)."""
+        return self.age < FOLLOW_FRAMES
+
+
+@dataclass(frozen=True)
+class RoundContacts:
+    """The stage's result.
+
+    Attributes:
+        fits: the contacts (posterior means for quantised readings).
+        residual: ‖prediction − readings‖ [m] over the taxels used, of the contacts reported.
+        followed: the contact to follow in the next frame (a single least-squares contact),
+            or None.
+    """
+
+    fits: list[RoundFit]
+    residual: float
+    followed: Followed | None
+
+
+class ContactFit:
+    """Round contacts of one patch's frames (see module docstring).
+
+    Args:
+        tables: the bundle's radial responses.
+        taxel_xy: (K, 2) taxel centres [m].
+        count_sigma: one count's compression [m] over √6 (the posterior's error, and the
+            unit of the multi-contact evidence).
+        contact_threshold: compression [m] above which a taxel reads contact.
+        max_contacts: separate contacts fitted at most.
+    """
+
+    def __init__(
+        self,
+        tables: RoundTables,
+        taxel_xy: NDArray[np.float64],
+        count_sigma: float,
+        contact_threshold: float,
+        max_contacts: int,
+    ) -> None:
+        self.tables = tables
+        self.taxel_xy = taxel_xy
+        self.count_sigma = count_sigma
+        self.contact_threshold = contact_threshold
+        self.max_contacts = max_contacts
+
+    def fit(
+        self, frame: Frame, start: NDArray | None, previous: Followed | None
+    ) -> RoundContacts | None:
+        """The frame's round contacts, or None when they do not explain the readings (χ²).
+
+        With ``previous`` (the contact followed), its refit alone is tried first and kept
+        when its χ² is within the test and within the slack of the last search's; otherwise
+        (or without ``previous``) the multi-start search runs from ``start`` [m] (the
+        detector's best place). ``start`` None: following only, no search.
+        """
+        ok = frame.ok
+        xy, d, s = self.taxel_xy[ok], frame.delta[ok], frame.sigma[ok]
+        limit = chi2_limit(len(d))
+        fits, followed = None, None
+        if previous is not None:
+            # The posterior spans both families anyway: only the followed one is fitted.
+            single = follow_round_contact(
+                self.tables, xy, d, previous.fit, sigma=s, other_family=not frame.quantised
+            )
+            if single is not None:
+                pred = self.tables.predict(single, xy)
+                misfit = chi2(pred, d, s, ROUND_MODEL_ERROR)
+                slack = FOLLOW_SLACK + FOLLOW_SLACK_SHARE * previous.misfit
+                if misfit <= min(limit, previous.misfit + slack):
+                    fits = [single]
+                    followed = Followed(single, previous.misfit, previous.age + 1)
+        fitter = ContactFitter(
+            self.tables, self.count_sigma, self.contact_threshold, s, self.max_contacts
+        )
+        if fits is None:
+            if start is None:
+                return None
+            found = fitter.fit(xy, d, np.asarray(start, dtype=np.float64))
+            if found is None:
+                return None
+            fits = found[0]
+            pred = fitter.predicted(fits, xy)
+            misfit = chi2(pred, d, s, ROUND_MODEL_ERROR)
+            if misfit > limit:
+                return None
+            if len(fits) == 1:
+                followed = Followed(fits[0], misfit, 0)
+        # The test above is on the least-squares fit (the least χ² the model reaches), not on
+        # the posterior mean: the mean of a curved valley lies off its floor, and on the load
+        # bench's 12 mm sphere it missed the test by a few percent where the fit passed it
+        # (χ² 138 against 86, limit 132), sending good frames to the slower grid path.
+        if frame.quantised and len(fits) == 1:
+            # Quantised readings: report the posterior mean over the size/centre/force valley
+            # (round_contact.posterior_contact) instead of the least-squares point. Its error is
+            # the rounding's (one count/√6), not the learnt noise level: unless the contact is
+            # followed, the same readings give the same contact whatever frames came before.
+            fits = [posterior_contact(self.tables, xy, d, fits[0], self.count_sigma)]
+            pred = fitter.predicted(fits, xy)
+        return RoundContacts(fits, float(np.linalg.norm(pred - d)), followed)
+
+    def predicted(self, fits: list[RoundFit], ok: NDArray) -> NDArray[np.float64]:
+        """(K,) compressions [m] of the contacts ``fits``, 0 at the taxels not ``ok``."""
+        predicted = np.zeros(len(self.taxel_xy))
+        for contact in fits:
+            predicted += self.tables.predict(contact, self.taxel_xy)
+        predicted[~ok] = 0.0
+        return predicted
