@@ -205,7 +205,8 @@ class SolverSpec:
 class PatchLayout:
     """One patch: modules plus the physical and numerical parameters of its reconstruction;
     ``surface``: where the flat patch lies on the robot (None: nowhere known; see
-    :mod:`tactile_contact.model.surface`)."""
+    :mod:`tactile_contact.model.surface`); ``bus``: the CAN bus its modules are on ("": the
+    only one), served by one ``skin_driver`` per bus."""
 
     name: str
     frame_id: str
@@ -216,6 +217,7 @@ class PatchLayout:
     model: ModelSpec = field(default_factory=ModelSpec)
     solver: SolverSpec = field(default_factory=SolverSpec)
     surface: Surface | None = None
+    bus: str = ""
 
     def _channels(self, valid_only: bool) -> list[tuple[ModuleSpec, int, NDArray[np.float64]]]:
         out = []
@@ -275,6 +277,8 @@ class PatchLayout:
             del d["surface"]
         else:
             d["surface"] = self.surface.to_dict()
+        if not self.bus:
+            del d["bus"]
         return d
 
     @property
@@ -298,6 +302,7 @@ class PatchLayout:
         """sha256 of everything that changes the matrices (all but name/frame) — *stale* check."""
         d = self.to_dict()
         d.pop("frame_id")
+        d.pop("bus", None)  # wiring, like the frame: moving a patch to another bus needs no rebuild
         return _sha(d)
 
 
@@ -307,6 +312,10 @@ class Layout:
 
     patches: tuple[PatchLayout, ...]
     source: str = "<memory>"
+
+    def buses(self) -> tuple[str, ...]:
+        """The CAN buses of the patches, in file order ("" is the single unnamed bus)."""
+        return tuple(dict.fromkeys(p.bus for p in self.patches))
 
     def patch(self, name: str) -> PatchLayout:
         for p in self.patches:
@@ -455,6 +464,7 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
             "model",
             "solver",
             "surface",
+            "bus",
         ),
     )
     name = d.get("name")
@@ -564,7 +574,12 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
         max_contacts=c.number(so, "max_contacts", sop, 3, lo=1, hi=8, integer=True),
     )
     surface = _parse_surface(c, d.get("surface"), f"{path}.surface")
-    patch = PatchLayout(str(name), frame, modules, elast, sensor, grid, model, solver, surface)
+    bus = d.get("bus", "")
+    if not isinstance(bus, str) or not all(ch.isalnum() or ch in "_-" for ch in bus):
+        raise c.err(
+            f"{path}.bus", f"expected a bus name of letters, digits, '_' or '-', got {bus!r}"
+        )
+    patch = PatchLayout(str(name), frame, modules, elast, sensor, grid, model, solver, surface, bus)
     _check_patch(c, patch, path)
     return patch
 
@@ -676,7 +691,7 @@ def parse_layout(data: Any, source: str = "<memory>") -> Layout:
         raise c.err("patches", "expected a non-empty list of patches")
     patches = tuple(_parse_patch(c, p, f"patches[{i}]") for i, p in enumerate(raw))
     names: dict[str, int] = {}
-    addr: dict[tuple[int, int], str] = {}
+    addr: dict[tuple[str, int, int], str] = {}
     for i, p in enumerate(patches):
         if p.name in names:
             raise c.err(
@@ -685,12 +700,13 @@ def parse_layout(data: Any, source: str = "<memory>") -> Layout:
             )
         names[p.name] = i
         for k, m in enumerate(p.modules):
-            key = (m.board, m.triangle)
+            key = (p.bus, m.board, m.triangle)  # addresses are unique on one bus
             if key in addr:
+                on = f" on bus {p.bus!r}" if p.bus else ""
                 raise c.err(
                     f"patches[{i}].modules[{k}]",
                     f"duplicate CAN address board {m.board} "
-                    f"triangle {m.triangle} (also in patch {addr[key]!r})",
+                    f"triangle {m.triangle}{on} (also in patch {addr[key]!r})",
                 )
             addr[key] = p.name
     return Layout(patches, source)
