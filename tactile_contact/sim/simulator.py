@@ -5,6 +5,15 @@ of every channel [m]) → sensor model (ΔC [F], :func:`compression_to_delta_c`)
 (CDC counts with noise, drift and rest offsets; ``noLoad − (cdc >> shift)`` clipped to 8 bits,
 :func:`module_value`) → frames A and B (:mod:`tactile_contact.canbus.codec`).
 
+Shift and saturation, as on the boards: each module's ``shift`` and ``noLoad`` start from the
+sensor parameters and follow the host's SET_TRIANG_CFG / SET_BRD_CFG commands
+(:meth:`SkinSimulator.apply_command`; the ``skin_simulator`` node applies those it receives). A
+larger shift divides the converter's counts (and its noise, in counts) by 2**shift: coarser
+counts, more range. The value clips at 0 when a taxel is compressed by more than noLoad counts
+and at 255 when it bulges by more than 255 − noLoad counts (15 with the default noLoad 240);
+clipped channels carry their out-of-range bit (:func:`saturating_delta_c` gives both limits in
+farads).
+
 Frame generation (:meth:`SkinSimulator.periods`, a generator of :class:`SimPeriod`) is separate
 from delivery: :func:`send_realtime` paces the frames onto any python-can bus, :func:`write_log`
 writes a candump ``.log`` (or any format ``can.Logger`` knows). Both return the truth.
@@ -24,8 +33,23 @@ import can
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from tactile_contact.canbus.codec import CHANNELS, CLASS_SKIN, reading_messages, skin_id
-from tactile_contact.model.sensor import SensorParams, compression_to_delta_c, module_value
+from tactile_contact.canbus.codec import (
+    CHANNELS,
+    CLASS_POLLING,
+    CLASS_SKIN,
+    CMD_SET_BRD_CFG,
+    CMD_SET_TRIANG_CFG,
+    reading_messages,
+    skin_id,
+)
+from tactile_contact.model.sensor import (
+    VALUE_MAX,
+    VALUE_MIN,
+    SensorParams,
+    compression_to_delta_c,
+    module_value,
+    value_count_farad,
+)
 
 if TYPE_CHECKING:
     from tactile_contact.model.layout import PatchLayout
@@ -204,6 +228,37 @@ class SkinSimulator:
         if exact_capacitance and not hasattr(model, "delta_c"):
             raise TypeError("exact_capacitance needs a model with delta_c (forward.ForwardModel)")
         self._cache: tuple[float, tuple[float, float], NDArray, NDArray] | None = None
+        #: Per module: firmware shift [bits], noLoad [counts] and whether it transmits (the
+        #: host's SET_TRIANG_CFG and SET_BRD_CFG change them: :meth:`apply_command`).
+        self.shift = np.full(len(self.modules), int(self.sensor.shift), dtype=np.int64)
+        self.no_load = np.full(len(self.modules), int(self.sensor.no_load), dtype=np.int64)
+        self.enabled = np.ones(len(self.modules), dtype=bool)
+
+    def apply_command(self, msg: can.Message) -> bool:
+        """Apply a host command as the addressed boards would; True if it was one for a
+        simulated board (SET_TRIANG_CFG: shift and enable of triangles ``first..last``;
+        SET_BRD_CFG: noLoad of every triangle of the board). Other frames, commands to other
+        boards and malformed commands are ignored (False), as a board ignores them."""
+        data = bytes(msg.data)
+        if msg.is_extended_id or msg.arbitration_id >> 4 != CLASS_POLLING << 4 or not data:
+            return False
+        board = msg.arbitration_id & 0xF
+        mine = [i for i, (b, _) in enumerate(self.modules) if b == board]
+        if not mine:
+            return False
+        if data[0] == CMD_SET_TRIANG_CFG and len(data) >= 5 and data[1] <= data[2]:
+            first, last, shift, enabled = data[1], data[2], data[3], data[4]
+            if shift > 15:
+                return False
+            for i in mine:
+                if first <= self.modules[i][1] <= last:
+                    self.shift[i] = shift
+                    self.enabled[i] = bool(enabled)
+            return True
+        if data[0] == CMD_SET_BRD_CFG and len(data) >= 4:
+            self.no_load[mine] = data[3]
+            return True
+        return False
 
     def _physics(
         self, indentation: Indentation | None, t: float
@@ -238,9 +293,13 @@ class SkinSimulator:
         force, center, delta, dc = self._physics(indentation, t)
         cdc = dc / s.farad_per_count + self.rest_cdc + self.drift * t
         cdc = cdc + self._rng.normal(0.0, self.noise_cdc, self.n) if self.noise_cdc else cdc
-        values, oor = module_value(np.rint(cdc), s.no_load, s.shift)
+        values, oor = module_value(
+            np.rint(cdc), np.repeat(self.no_load, CHANNELS), np.repeat(self.shift, CHANNELS)
+        )
         msgs: list[can.Message] = []
         for i, (b, tri) in enumerate(self.modules):
+            if not self.enabled[i]:
+                continue
             sl = slice(CHANNELS * i, CHANNELS * (i + 1))
             mask = int(np.dot(oor[sl].astype(np.int64), 1 << np.arange(CHANNELS)))
             msgs += reading_messages(
@@ -264,6 +323,16 @@ class SkinSimulator:
         n = math.floor(duration_s / self.period_s + 1e-9)
         for k in range(n):
             yield self.period(indentation, start_s + k * self.period_s)
+
+
+def saturating_delta_c(sensor: SensorParams, shift: int | None = None) -> tuple[float, float]:
+    """(largest, smallest) ΔC [F] a module value carries before it clips at 0 (compression)
+    or 255 (bulge): ``noLoad`` and ``255 − noLoad`` 8-bit counts of ``farad_per_count ·
+    2**shift`` each (``shift`` default: the sensor's). With the defaults (shift 2, noLoad 240):
+    +307 fF and −19 fF, about +1.1 mm and −0.17 mm of compression of the 2 mm layer."""
+    bits = sensor.shift if shift is None else shift
+    count = float(value_count_farad(sensor.farad_per_count, bits))
+    return (sensor.no_load - VALUE_MIN) * count, (sensor.no_load - VALUE_MAX) * count
 
 
 def send_realtime(
