@@ -61,3 +61,20 @@ def ros_context() -> Iterator[object]:
         yield context
     finally:
         rclpy.shutdown(context=context)
+
+
+@pytest.fixture(scope="session")
+def hexagon_bundle(tmp_path_factory: pytest.TempPathFactory) -> object:
+    """The default patch's bundle (config/hexagon_patch.yaml), built once per test session:
+    (bundle folder, PatchLayout)."""
+    from pathlib import Path
+
+    from tactile_contact.model.layout import load_layout
+    from tactile_contact.offline.build import build_patch
+    from tactile_contact.offline.bundle import save_bundle
+
+    patch = load_layout(Path(__file__).resolve().parents[1] / "config/hexagon_patch.yaml").patches[
+        0
+    ]
+    manifest, arrays = build_patch(patch)
+    return save_bundle(tmp_path_factory.mktemp("hexagon") / patch.name, manifest, arrays), patch
