@@ -105,7 +105,7 @@ def _good(n=10, k=72):
         (lambda g: g.pop("force"), "missing key 'force'"),
         (lambda g: g.update(deflection=g["deflection"][:, :70]), "must have shape"),
         (lambda g: g.update(position=g["position"] * 1e3), "millimetres given"),
-        (lambda g: g.update(deflection=g["deflection"] * 1e3), "micrometres given"),
+        (lambda g: g.update(deflection=g["deflection"] * 1e3), "millimetres given"),
         (lambda g: g.update(force=g["force"] * 1e3), "millinewtons given"),
         (lambda g: g["force"].__setitem__(2, np.nan), "NaN"),
         (lambda g: g.update({k: v[:3] for k, v in g.items()}), "at least"),

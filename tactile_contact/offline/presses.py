@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import re
 import sys
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -67,14 +68,50 @@ def indenter_named(name: str) -> Indenter:
     raise CalibrationError(f"unknown indenter {name!r}: expected one of {known}, or hertz:R_mm")
 
 
+_NPZ_HINT = (
+    "write one with numpy.savez(PATH, force=…, position=…, deflection=…) "
+    "(or tactile-contact-presses from a recorded session)"
+)
+
+
+def _what_file(path: Path) -> str:
+    """A few words on what a file that is not a .npz archive holds."""
+    with path.open("rb") as f:
+        head = f.read(512)
+    if head.startswith(b"\x93NUMPY"):
+        return "a single .npy array"
+    if not head:
+        return "an empty file"
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError:
+        return "binary data"
+    return "text: " + repr(head.splitlines()[0][:40].decode("utf-8", "replace"))
+
+
+def _same_presses(path: Path, rows: dict[str, int]) -> None:
+    """One entry per press in every array: else the one that differs from the rest is named."""
+    if len(set(rows.values())) == 1:
+        return
+    counts = list(rows.values())
+    odd = [key for key, n in rows.items() if counts.count(n) == 1]
+    key = odd[0] if len(odd) == 1 else next(iter(rows))
+    others = " and ".join(f"{k!r} {n}" for k, n in rows.items() if k != key)
+    raise CalibrationError(
+        f"{path}: {key!r} has {rows[key]} presses, {others}: one entry per press in each"
+    )
+
+
 def load_presses(path: str | Path, patch: PatchLayout) -> Presses:
     """Read and check PRESSES.npz for ``patch`` (errors name the file and the key)."""
     p = Path(path)
+    if not p.is_file():
+        raise CalibrationError(f"{p}: no such file")
+    if not zipfile.is_zipfile(p):  # (np.load would try it as a pickle and say so)
+        raise CalibrationError(f"{p}: not a readable .npz file ({_what_file(p)}); {_NPZ_HINT}")
     try:
         z = np.load(p, allow_pickle=False)
         data = {k: z[k] for k in z.files}
-    except FileNotFoundError:
-        raise CalibrationError(f"{p}: no such file") from None
     except Exception as e:  # every unreadable file is one clear error
         raise CalibrationError(f"{p}: not a readable .npz file ({e})") from None
     k = len(patch.taxel_xy())
@@ -89,32 +126,34 @@ def load_presses(path: str | Path, patch: PatchLayout) -> Presses:
         raise CalibrationError(f"{p}: 'force' must have shape (N,), got {force.shape}")
     n = len(force)
     if "deflection" in data:
-        d = np.asarray(data["deflection"], dtype=np.float64)
         src = "deflection"
     elif "delta_c" in data:
-        counts = np.asarray(data["delta_c"], dtype=np.float64)
+        src = "delta_c"
+    else:
+        raise CalibrationError(
+            f"{p}: needs 'deflection' [m] or 'delta_c' [counts], (presses, taxels); "
+            f"keys: {sorted(data)}"
+        )
+    d = np.asarray(data[src], dtype=np.float64)
+    if d.ndim != 2 or d.shape[1] != k:
+        raise CalibrationError(
+            f"{p}: {src!r} must have shape (presses, {k}): one reading per taxel of patch "
+            f"{patch.name!r} in each row, got {d.shape}"
+        )
+    pos = np.asarray(need("position"), dtype=np.float64)
+    if pos.ndim != 2 or pos.shape[1] != 2:
+        raise CalibrationError(f"{p}: 'position' must have shape (presses, 2) [m], got {pos.shape}")
+    _same_presses(p, {"force": n, src: d.shape[0], "position": pos.shape[0]})
+    if src == "delta_c":
         from tactile_contact.model.sensor import delta_c_to_compression, value_count_farad
 
         s = patch.sensor
-        if counts.shape == (n, k):
-            dc = counts * value_count_farad(s.farad_per_count, s.shift)
-            d = delta_c_to_compression(
-                np.where(np.isfinite(dc), dc, 0.0), patch.elastomer.thickness, s.epsilon_r, s.area
-            )
-            d = np.where(np.isfinite(counts), d, np.nan)
-        else:
-            d = counts
-        src = "delta_c"
-    else:
-        raise CalibrationError(f"{p}: needs 'deflection' [m] or 'delta_c' [counts] (N, K)")
-    if d.shape != (n, k):
-        raise CalibrationError(
-            f"{p}: {src!r} must have shape (N, K) = ({n}, {k}) for patch {patch.name!r} "
-            f"(N from 'force', K its taxels), got {d.shape}"
+        counts = d
+        dc = counts * value_count_farad(s.farad_per_count, s.shift)
+        d = delta_c_to_compression(
+            np.where(np.isfinite(dc), dc, 0.0), patch.elastomer.thickness, s.epsilon_r, s.area
         )
-    pos = np.asarray(need("position"), dtype=np.float64)
-    if pos.shape != (n, 2):
-        raise CalibrationError(f"{p}: 'position' must have shape ({n}, 2) [m], got {pos.shape}")
+        d = np.where(np.isfinite(counts), d, np.nan)
     valid = np.ones((n, k), bool)
     if "valid" in data:
         valid = np.asarray(data["valid"], dtype=bool)
@@ -141,10 +180,16 @@ def load_presses(path: str | Path, patch: PatchLayout) -> Presses:
             "(millimetres given?)"
         )
     h = patch.elastomer.thickness
-    if np.abs(d).max() >= h:
+    top = float(np.abs(d).max())
+    if top >= h:
+        if src == "delta_c":
+            hint = "expected CDC counts (ΔC of the 8-bit values × 2^shift)"
+        else:  # a compression never reaches the layer's thickness: in mm it stays below h·1e3
+            hint = "expected metres (" + ("millimetres" if top <= h * 1e3 else "micrometres")
+            hint += " given?)"
         raise CalibrationError(
-            f"{p}: {src!r} up to {np.abs(d).max():g} m, not below the layer thickness {h:g} m: "
-            "expected metres (micrometres given?)"
+            f"{p}: {src!r} up to {top:g}, giving compressions not below the layer thickness "
+            f"{h:g} m: {hint}"
         )
     if n < MIN_PRESSES:
         raise CalibrationError(f"{p}: {n} presses; at least {MIN_PRESSES} are needed")
@@ -245,11 +290,14 @@ def main_presses(argv: list[str] | None = None) -> int:
     ap.add_argument("bag", type=Path, help="rosbag2 folder (MCAP or sqlite3)")
     ap.add_argument("layout", type=Path, help="patch layout YAML")
     ap.add_argument("-o", "--out", type=Path, required=True, help="PRESSES.npz to write")
-    ap.add_argument("--patch", help="patch (default: the only one)")
+    ap.add_argument("--patch", help="patch (needed when the layout has several)")
     ap.add_argument("--min-force", type=float, default=0.05, help="least force kept [N]")
     args = ap.parse_args(argv)
     try:
         lay = load_layout(args.layout)
+        if args.patch is None and len(lay.patches) != 1:
+            names = ", ".join(p.name for p in lay.patches)
+            raise CalibrationError(f"{args.layout}: several patches ({names}): pass --patch")
         patch = lay.patch(args.patch) if args.patch else lay.patches[0]
         arrays = presses_from_bag(args.bag, patch, min_force=args.min_force)
         np.savez(args.out, **arrays)
