@@ -1,28 +1,17 @@
-"""Force and centre of pressure on skins whose taxel response is not the one the bundle assumes,
-uncalibrated and calibrated, beside the Cramér–Rao bound (issue 16: "Uncalibrated, robust by
-default", "Accuracy").
+"""Force and CoP error on skins with other taxel responses: default bundle against calibrated,
+each beside the Cramér–Rao bound (issue 16: "Uncalibrated, robust by default", "Accuracy").
 
-Protocol (the paper's): indenters sphere 12 mm (HertzSphere 6 mm), sphere 6 mm (3 mm),
-cylinder 12 mm (FlatPunch 6 mm), cylinder 3 mm (1.5 mm) × forces 0.2, 0.5, 1, 1.8, 2.5, 3 N ×
-over taxel 3 / between taxels 7 and 11 / at the centroid of 3, 7, 11 of modules 4 and 2
-(144 presses). Truth: tactile_contact.model.forward.ForwardModel on 0.25 mm cells (reproduced with
-its Jacobian by bench/_crb.py) with a taxel response of its own:
-
-    point           the compression at the taxel centre
-    2 mm electrode  the mean over a 2 mm disc (the layout's nominal response)
-    3 mm electrode  the mean over a 3 mm disc
-    gain 0.85/1.15  the 2 mm electrode's reading × 0.85 / × 1.15
-    layer 0.9/1.1   the 2 mm electrode over a layer 10 % thinner / thicker
-
-Tiers: ``float``: δ + Gaussian noise of σ = 1 % of the press's largest |δ| per taxel (seeded),
-through ``solve_deflection(δ)``; ``8-bit``: δ → ΔC with the layout's sensor model
-(tactile_contact.model.sensor.compression_to_delta_c), + 0.15-count Gaussian noise, rounded to
-counts of ``value_count_farad(farad_per_count, shift)``, through ``solve(ΔC)``.
+Protocol (the paper's, :mod:`benchkit.protocol`): 4 indenters × forces 0.2, 0.5, 1, 1.8, 2.5,
+3 N × over a taxel / between two / between three taxels of modules 4 and 2 (144 presses).
+Truths (:mod:`benchkit.truths`): the fine forward model on 0.25 mm cells with a taxel response
+of its own: point values, 2 mm and 3 mm electrodes, gain × 0.85 / × 1.15, layer × 0.9 / × 1.1.
+Tiers (:mod:`benchkit.readings`): ``float``, δ + 1 % Gaussian noise through
+``solve_deflection(δ)``; ``8-bit``, ΔC + 0.15-count noise rounded to counts through
+``solve(ΔC)``.
 
 Bundles: ``default``, built from config/hexagon_patch.yaml; ``calibrated``, written by
 ``python -m tactile_contact.offline.calibrate LAYOUT PRESSES.npz -o DIR`` from 48 presses of the
-same
-truth and tier at other places (random, on the skin, ≥ 2 mm from every test place; random
+same truth and tier at other places (random, on the skin, ≥ 2 mm from every test place; random
 indenter of the four, named in ``indenter``; 0.5–3 N; seeded). Without the calibrate command
 the calibrated rows are skipped with a note.
 
@@ -45,78 +34,33 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
-import math
-import os
 import subprocess
 import sys
 import tempfile
 import time
-import zlib
 from pathlib import Path
 
-for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
-    os.environ.setdefault(_v, "1")
-
-import numpy as np  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "bench"))
-
-from _crb import Truth, crb  # noqa: E402
-from bench_accuracy import positions  # noqa: E402
-from threadpoolctl import threadpool_limits  # noqa: E402
-
-from tactile_contact.inverse.reconstruction import Reconstructor  # noqa: E402
-from tactile_contact.model.indenters import FlatPunch, HertzSphere  # noqa: E402
-from tactile_contact.model.layout import load_layout  # noqa: E402
-from tactile_contact.model.sensor import (  # noqa: E402
-    compression_to_delta_c,
-    delta_c_to_compression,
-    value_count_farad,
+import benchkit.onecore  # noqa: F401  (before numpy)
+import numpy as np
+from benchkit import LAYOUT, ROOT
+from benchkit.protocol import Patch, default_reconstructor
+from benchkit.readings import CLEAR, COUNT_NOISE, NOISE_REL, TIERS, clear_of, readings, seed
+from benchkit.stats import BANDS, COLUMNS, bandmask, bounds, errors, row_stats, worst_of
+from benchkit.tables import WIDTH, Report, fmt_head, fmt_row
+from benchkit.truths import (
+    CACHE,
+    N_CAL,
+    N_CAL_QUICK,
+    QUICK_TRUTHS,
+    SHORT,
+    TRUTHS,
+    calibration_presses,
+    test_presses,
 )
-from tactile_contact.offline.build import build_layout  # noqa: E402
+from threadpoolctl import threadpool_limits
 
-LAYOUT = ROOT / "config" / "hexagon_patch.yaml"
-CACHE = ROOT / "out" / "bench-robust-cache"
-CACHE_VERSION = 1
+from tactile_contact.inverse.reconstruction import Reconstructor
 
-INDENTERS = {
-    "sphere 12 mm": HertzSphere(6e-3),
-    "sphere 6 mm": HertzSphere(3e-3),
-    "cylinder 12 mm": FlatPunch(6e-3),
-    "cylinder 3 mm": FlatPunch(1.5e-3),
-}
-FORCES = (0.2, 0.5, 1.0, 1.8, 2.5, 3.0)
-QUICK_FORCES = (0.2, 0.5, 1.0, 3.0)
-BANDS = ("0.2 N", "0.5 N", ">=1 N")
-#: name → (footprint radius [m], layer thickness scale, gain)
-TRUTHS = {
-    "point": (0.0, 1.0, 1.0),
-    "2 mm electrode": (2e-3, 1.0, 1.0),
-    "3 mm electrode": (3e-3, 1.0, 1.0),
-    "gain 0.85": (2e-3, 1.0, 0.85),
-    "gain 1.15": (2e-3, 1.0, 1.15),
-    "layer 0.9": (2e-3, 0.9, 1.0),
-    "layer 1.1": (2e-3, 1.1, 1.0),
-}
-SHORT = {
-    "point": "pt",
-    "2 mm electrode": "e2",
-    "3 mm electrode": "e3",
-    "gain 0.85": "g.85",
-    "gain 1.15": "g1.15",
-    "layer 0.9": "h.9",
-    "layer 1.1": "h1.1",
-}
-QUICK_TRUTHS = ("point", "gain 1.15")
-TIERS = ("float", "8-bit")
-NOISE_REL = 0.01  # float tier: σ over the press's largest |δ|
-CLEAR = 10.0  # a press clearly above noise: a known-shape matched filter reads ‖δ/σ‖ ≥ this
-COUNT_NOISE = 0.15  # 8-bit tier: converter noise [counts RMS]
-N_CAL, N_CAL_QUICK = 48, 24
-CAL_MIN_DIST = 2e-3  # calibration places: at least this far from every test place [m]
-CAL_ON_SKIN = 3e-3  # ... and at most this far from a taxel [m]
 #: Issue 16's accuracy targets (calibrated bundle): (tier, column, limit).
 TARGETS = (
     ("float", "max>=1", 5.0),
@@ -129,208 +73,13 @@ TARGETS = (
 )
 
 
-# --- layout and protocol -------------------------------------------------------------------
-
-
-class Layout:
-    """The default patch: taxel centres (bundle order), elastic and sensor constants."""
-
-    def __init__(self, path: Path = LAYOUT) -> None:
-        patch = load_layout(path).patches[0]
-        self.xy = patch.taxel_xy()
-        e, s = patch.elastomer, patch.sensor
-        self.thickness, self.young, self.poisson = e.thickness, e.young, e.poisson
-        self.epsilon_r, self.area = s.epsilon_r, s.area
-        self.lsb = float(value_count_farad(s.farad_per_count, s.shift))
-
-    def to_delta_c(self, d: np.ndarray) -> np.ndarray:
-        return compression_to_delta_c(d, self.thickness, self.epsilon_r, self.area)
-
-    def to_deflection(self, dc: np.ndarray) -> np.ndarray:
-        return delta_c_to_compression(dc, self.thickness, self.epsilon_r, self.area)
-
-
-def _truth(lay: Layout, name: str) -> Truth:
-    foot, scale, _ = TRUTHS[name]
-    return Truth(lay.xy, lay.thickness * scale, lay.young, lay.poisson, foot)
-
-
-def _tag(lay: Layout, name: str) -> str:
-    foot, scale, _ = TRUTHS[name]
-    key = repr((CACHE_VERSION, lay.xy.round(9).tolist(), lay.thickness, lay.young, lay.poisson))
-    return f"r{foot * 1e3:g}_h{scale:g}_{zlib.crc32(key.encode()):08x}"
-
-
-def test_presses(lay: Layout, name: str, quick: bool = False) -> dict[str, np.ndarray]:
-    """The protocol's presses of truth ``name``: d (N, K) [m], J (N, K, 4), f (N,), c (N, 2),
-    ind (N,) names, place (N,) kinds. Cached per indenter and place (all six forces)."""
-    gain = TRUTHS[name][2]
-    folder = CACHE / _tag(lay, name)
-    folder.mkdir(parents=True, exist_ok=True)
-    truth = None
-    places = positions(lay.xy, (4,) if quick else (4, 2))
-    forces = QUICK_FORCES if quick else FORCES
-    rows: dict[str, list] = {k: [] for k in ("d", "J", "f", "c", "ind", "place")}
-    for iname, ind in INDENTERS.items():
-        for kind, c in places:
-            key = folder / f"{iname.replace(' ', '')}_{c[0] * 1e6:.0f}_{c[1] * 1e6:.0f}.npz"
-            if not key.exists():
-                truth = truth or _truth(lay, name)
-                d, jac = truth.presses(ind, list(FORCES), c)
-                np.savez(key, d=d, J=jac, f=np.array(FORCES))
-            z = np.load(key)
-            for i, f in enumerate(z["f"]):
-                if f in forces:
-                    rows["d"].append(gain * z["d"][i])
-                    rows["J"].append(gain * z["J"][i])
-                    rows["f"].append(f)
-                    rows["c"].append(c)
-                    rows["ind"].append(iname)
-                    rows["place"].append(kind)
-    return {k: np.array(v) for k, v in rows.items()}
-
-
-def calibration_places(lay: Layout, n: int) -> list[tuple[str, np.ndarray, float]]:
-    """``n`` (indenter, place, force) presses, seeded and the same for every truth: on the skin
-    (≤ CAL_ON_SKIN from a taxel), ≥ CAL_MIN_DIST from every test place, 0.5–3 N."""
-    rng = np.random.default_rng(2016)
-    tests = np.array([c for _, c in positions(lay.xy)])
-    lo, hi = lay.xy.min(axis=0), lay.xy.max(axis=0)
-    names = list(INDENTERS)
-    out = []
-    while len(out) < n:
-        p = rng.uniform(lo, hi)
-        if np.hypot(*(lay.xy - p).T).min() > CAL_ON_SKIN:
-            continue
-        if np.hypot(*(tests - p).T).min() < CAL_MIN_DIST:
-            continue
-        out.append((names[rng.integers(len(names))], p, float(rng.uniform(0.5, 3.0))))
-    return out
-
-
-def calibration_presses(lay: Layout, name: str, n: int) -> dict[str, np.ndarray]:
-    """The truth's ``n`` calibration presses (cached): d (n, K) [m], f, c, ind."""
-    gain = TRUTHS[name][2]
-    every = calibration_places(lay, N_CAL)
-    places = every[:n]
-    which = zlib.crc32(repr([(i, c.round(9).tolist(), f) for i, c, f in every]).encode())
-    key = CACHE / _tag(lay, name) / f"calibration_{N_CAL}_{which:08x}.npz"
-    if not key.exists() or len(np.load(key)["d"]) != len(every):
-        truth = _truth(lay, name)
-        d = [truth.presses(INDENTERS[i], [f], c, jacobian=False)[0][0] for i, c, f in every]
-        np.savez(key, d=np.array(d))
-    d = np.load(key)["d"][:n]
-    return {
-        "d": gain * d,
-        "f": np.array([p[2] for p in places]),
-        "c": np.array([p[1] for p in places]),
-        "ind": np.array([p[0] for p in places]),
-    }
-
-
-def _seed(*parts: str) -> int:
-    return zlib.crc32("/".join(parts).encode())
-
-
-def readings(lay: Layout, d: np.ndarray, tier: str, rng: np.random.Generator) -> np.ndarray:
-    """The tier's readings of compressions d (N, K): deflections [m] (float) or ΔC [F]."""
-    if tier == "float":
-        return d + rng.normal(size=d.shape) * NOISE_REL * np.abs(d).max(axis=1, keepdims=True)
-    counts = np.rint(lay.to_delta_c(d) / lay.lsb + rng.normal(0.0, COUNT_NOISE, d.shape))
-    return counts * lay.lsb
-
-
-def noise_of(lay: Layout, d: np.ndarray, tier: str) -> np.ndarray:
-    """(N, 1) or scalar compression noise [m] of the tier (8-bit: converter noise and rounding
-    at small readings)."""
-    if tier == "float":
-        return NOISE_REL * np.abs(d).max(axis=1, keepdims=True)
-    return float(lay.to_deflection(np.array([lay.lsb]))[0]) * math.hypot(COUNT_NOISE, 12**-0.5)
-
-
-def clear_of(lay: Layout, d: np.ndarray, tier: str) -> np.ndarray:
-    """(N,) presses whose ideal matched-filter statistic ‖δ/σ‖ is at least CLEAR."""
-    return np.linalg.norm(d / noise_of(lay, d, tier), axis=1) >= CLEAR
-
-
-def bounds(lay: Layout, p: dict[str, np.ndarray], tier: str) -> tuple[np.ndarray, np.ndarray]:
-    """Per press: Cramér–Rao σ_F/F [%] and RMS centre bound [mm] for the tier's noise."""
-    sf, sc = [], []
-    for d, jac, f in zip(p["d"], p["J"], p["f"], strict=True):
-        if tier == "float":
-            sigma = np.full(len(d), NOISE_REL * np.abs(d).max())
-        else:  # in ΔC: the sensor model's slope, the converter noise plus the rounding
-            eps = 1e-9
-            slope = (lay.to_delta_c(d + eps) - lay.to_delta_c(d - eps)) / (2 * eps)
-            jac = slope[:, None] * jac
-            sigma = np.full(len(d), lay.lsb * math.sqrt(COUNT_NOISE**2 + 1 / 12))
-        a, b = crb(jac, sigma, float(f))
-        sf.append(a)
-        sc.append(b * 1e3)
-    return np.array(sf), np.array(sc)
-
-
-# --- reconstruction and statistics ---------------------------------------------------------
-
-
-def run(recon: Reconstructor, tier: str, x: np.ndarray, p: dict) -> dict[str, np.ndarray]:
-    """Per press: signed force error [%] (NaN: missed), CoP error [mm] (NaN: missed)."""
-    err, cop = np.full(len(x), np.nan), np.full(len(x), np.nan)
-    for i, (xi, f, c) in enumerate(zip(x, p["f"], p["c"], strict=True)):
-        res = recon.solve_deflection(xi) if tier == "float" else recon.solve(xi)
-        if res.in_contact:
-            err[i] = (res.total_force / f - 1.0) * 100.0
-            cop[i] = float(np.hypot(*(np.asarray(res.cop, dtype=float) - c))) * 1e3
-    return {"err": err, "cop": cop}
-
-
-def stats(r: dict[str, np.ndarray], f: np.ndarray, clear: np.ndarray) -> dict[str, float]:
-    """Columns of one row; ``clear`` (N,) marks presses clearly above noise (ideal z ≥ CLEAR)."""
-    miss = np.isnan(r["err"])
-    a = np.where(miss, 100.0, np.abs(r["err"]))
-    cop = np.where(miss, np.inf, r["cop"])
-    hi = f >= 1.0
-    out = {
-        "0.2 N": float(np.median(a[f == 0.2])) if np.any(f == 0.2) else np.nan,
-        "0.5 N": float(np.median(a[f == 0.5])) if np.any(f == 0.5) else np.nan,
-        ">=1 N": float(np.median(a[hi])),
-        "max>=1": max(float(np.median(a[f == v])) for v in np.unique(f[hi])),
-        "all": float(np.median(a)),
-        "p90": float(np.percentile(a, 90)),
-        # Misses hold no sign: the bias is over the detected presses.
-        "bias>=1": float(np.median(r["err"][hi & ~miss])) if np.any(hi & ~miss) else np.nan,
-        "cop": float(np.median(cop)),
-        "misses": int(miss.sum()),
-        "miss!": int((miss & clear).sum()),
-    }
-    return out
-
-
-COLUMNS = ("0.2 N", "0.5 N", ">=1 N", "max>=1", "all", "p90", "bias>=1", "cop", "misses", "miss!")
-WIDTH = {"misses": 5, "miss!": 6, "bias>=1": 8, "cop": 7}
-
-
-def fmt_row(label: str, r: dict[str, float]) -> str:
-    cells = []
-    for k in COLUMNS:
-        v = r[k]
-        w = WIDTH.get(k, 7)
-        if k in ("misses", "miss!"):
-            cells.append(f"{int(v):{w}d}")
-        elif k == "cop":
-            cells.append(f"{v:{w}.2f}" if np.isfinite(v) else f"{'inf':>{w}s}")
-        else:
-            cells.append(f"{v:{w}.1f}" if np.isfinite(v) else f"{'-':>{w}s}")
-    return f"{label} |" + "".join(cells)
-
-
 def calibrated_bundle(
-    lay: Layout, name: str, tier: str, n: int, tmp: Path
+    lay: Patch, name: str, tier: str, n: int, tmp: Path
 ) -> tuple[Path | None, str]:
     """Calibrate on ``n`` presses of the truth at the tier's noise with the calibrate command;
     (bundle path or None, its printed summary or error)."""
     cal = calibration_presses(lay, name, n)
-    rng = np.random.default_rng(_seed("calibration", name, tier))
+    rng = np.random.default_rng(seed("calibration", name, tier))
     x = readings(lay, cal["d"], tier, rng)
     defl = x if tier == "float" else lay.to_deflection(x)
     tag = f"{SHORT[name]}_{tier}".replace("-", "")
@@ -386,16 +135,10 @@ def main() -> None:
     n_cal = args.cal_presses or (N_CAL_QUICK if args.quick else N_CAL)
     if n_cal > N_CAL:
         sys.exit(f"--cal-presses at most {N_CAL}")
-    lines: list[str] = []
-
-    def say(s: str = "") -> None:
-        print(s, flush=True)
-        lines.append(s)
-
-    lay = Layout()
+    say = Report()
+    lay = Patch()
     tmp = Path(tempfile.mkdtemp(prefix="bench_robust_"))
-    build_layout(LAYOUT, tmp / "default", jobs=1)
-    default = Reconstructor.from_bundle(tmp / "default" / "hexagon")
+    default = default_reconstructor(tmp / "default")
     if not np.allclose(default.taxel_xy, lay.xy):
         sys.exit("bundle taxel order differs from the layout's taxel_xy()")
     have_cal = not args.no_calibrate and importlib.util.find_spec(
@@ -419,11 +162,7 @@ def main() -> None:
     say(f"(forward simulations: {sim_secs:.0f} s, cache {CACHE.relative_to(ROOT)})")
     say()
     head = f"{'truth':16s} {'tier':6s} {'bundle':10s}"
-    say(
-        f"{head} |"
-        + "".join(f"{k:>{WIDTH.get(k, 7)}s}" for k in COLUMNS[:-3])
-        + f"{'CoP mm':>7s}{'miss':>5s}{'miss!':>6s}"
-    )
+    say(fmt_head(head))
     say(
         f"{'':34s}   (force errors in %: median |error|; bias: median signed error; miss!: "
         f"misses of presses clearly above noise, ‖δ/σ‖ ≥ {CLEAR:g})"
@@ -434,7 +173,7 @@ def main() -> None:
     for name in names:
         p = presses[name]
         for tier in TIERS:
-            x = readings(lay, p["d"], tier, np.random.default_rng(_seed("test", name, tier)))
+            x = readings(lay, p["d"], tier, np.random.default_rng(seed("test", name, tier)))
             if tier == "8-bit":
                 over = int(np.sum(np.any(np.abs(x / lay.lsb) > 255, axis=1)))
                 if over:
@@ -448,8 +187,8 @@ def main() -> None:
                 else:
                     say(f"NOTE: {name} / {tier}: {note}")
             for kind, recon in bundles.items():
-                r = run(recon, tier, x, p)
-                s = stats(r, p["f"], clear_of(lay, p["d"], tier))
+                r = errors(recon, tier, x, p)
+                s = row_stats(r, p["f"], clear_of(lay, p["d"], tier))
                 results[(name, tier, kind)] = s
                 per_press[(name, tier, kind)] = r
                 say(fmt_row(f"{name:16s} {tier:6s} {kind:10s}", s))
@@ -463,18 +202,7 @@ def main() -> None:
             keys = [k for k in results if k[1] == tier and k[2] == kind]
             if not keys:
                 continue
-            w, who = {}, {}
-            for col in COLUMNS:
-                vals = [(results[k][col], k[0]) for k in keys]
-                vals = [v for v in vals if not (isinstance(v[0], float) and np.isnan(v[0]))]
-                if not vals:
-                    w[col], who[col] = np.nan, "-"
-                    continue
-                # The first truth wins a tie.
-                pick = max(vals, key=(lambda v: abs(v[0])) if col == "bias>=1" else lambda v: v[0])
-                w[col], who[col] = pick
-                if pick[0] == 0:  # every truth ties
-                    who[col] = "-"
+            w, who = worst_of([(results[k], k[0]) for k in keys])
             worst[(tier, kind)] = {"value": w, "truth": who}
             say(fmt_row(f"{'WORST':16s} {tier:6s} {kind:10s}", w))
             say(
@@ -526,13 +254,13 @@ def main() -> None:
         say(note)
     say(f"({time.perf_counter() - t_start:.0f} s in all)")
     if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        text = (
-            "# Robustness to the taxel response (bench/bench_robust.py)\n\n"
-            f"`.venv/bin/python bench/bench_robust.py{' --quick' if args.quick else ''} "
-            f"--out {args.out}`\n\n```\n"
+        say.write(
+            args.out,
+            "robust.md",
+            "Robustness to the taxel response (bench/bench_robust.py)",
+            f".venv/bin/python bench/bench_robust.py{' --quick' if args.quick else ''} "
+            f"--out {args.out}",
         )
-        (args.out / "robust.md").write_text(text + "\n".join(lines) + "\n```\n")
         blob = {
             "rows": [
                 {"truth": k[0], "tier": k[1], "bundle": k[2], **v} for k, v in results.items()
@@ -540,10 +268,6 @@ def main() -> None:
             "worst": [{"tier": k[0], "bundle": k[1], **v} for k, v in worst.items()],
         }
         (args.out / "robust.json").write_text(json.dumps(blob, indent=1, default=float))
-
-
-def bandmask(f: np.ndarray, band: str) -> np.ndarray:
-    return f >= 1.0 if band == ">=1 N" else np.isclose(f, float(band.split()[0]))
 
 
 def detail(say, r: dict[str, np.ndarray], p: dict[str, np.ndarray]) -> None:
