@@ -4,7 +4,7 @@
 One core: BLAS, OpenMP and numba pinned to one thread (threadpoolctl and the *_NUM_THREADS
 variables, set before numpy loads). Wall time of each call, as a node pays it.
 
-* contact frames: the paper's protocol (bench/bench_robust.py: 4 indenters × 6 forces × 6
+* contact frames: the paper's protocol (benchkit.protocol: 4 indenters × 6 forces × 6
   places) on a truth other than the default's (``--truth``, default: point taxels), float
   readings with 1 % noise through ``solve_deflection(δ)`` (every output, and the summary only
   when the call takes ``want_traction``/``want_deflection``), and 8-bit ΔC through ``solve``;
@@ -24,55 +24,21 @@ Timings on a shared machine: the load average at the start is printed; p99 suffe
 from __future__ import annotations
 
 import argparse
-import inspect
 import os
-import sys
 import tempfile
-import time
 from pathlib import Path
 
-for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
-    os.environ.setdefault(_v, "1")
-
-import numpy as np  # noqa: E402
-import scipy.optimize  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "bench"))
-
-from bench_robust import LAYOUT, TRUTHS, Layout, _seed, readings, test_presses  # noqa: E402
-from threadpoolctl import threadpool_info, threadpool_limits  # noqa: E402
-
-from tactile_contact.inverse.reconstruction import Reconstructor  # noqa: E402
-from tactile_contact.offline.build import build_layout  # noqa: E402
+import benchkit.onecore  # noqa: F401  (before numpy)
+import numpy as np
+import scipy.optimize
+from benchkit.protocol import Patch, default_reconstructor
+from benchkit.readings import COUNT_NOISE, assumed_noise, readings, seed
+from benchkit.tables import write_block
+from benchkit.timing import per_frame, takes
+from benchkit.truths import TRUTHS, test_presses
+from threadpoolctl import threadpool_info, threadpool_limits
 
 TARGETS = {"contact p50": 1000.0, "contact p99": 3000.0, "idle p50": 50.0}
-
-
-def timed(fn, frames, repeat: int, rng: np.random.Generator) -> tuple[np.ndarray, int]:
-    """Wall time [s] of fn(x) for every frame, ``repeat`` shuffled passes; frames in contact."""
-    out, hits = [], 0
-    for _ in range(repeat):
-        for i in rng.permutation(len(frames)):
-            t = time.perf_counter()
-            res = fn(frames[i])
-            out.append(time.perf_counter() - t)
-            hits += bool(getattr(res, "in_contact", False))
-    return np.array(out), hits
-
-
-def assumed_noise(recon: Reconstructor) -> np.ndarray:
-    """(K,) compression noise [m] the reconstructor assumes when none is passed."""
-    for attr in ("default_noise", "noise_sigma", "noise"):
-        v = getattr(recon, attr, None)
-        if v is not None and not callable(v):
-            return np.broadcast_to(np.asarray(v, dtype=np.float64), (recon.n_taxels,)).copy()
-    return np.full(recon.n_taxels, float(recon.params["noise"]))
-
-
-def takes(fn, name: str) -> bool:
-    return name in inspect.signature(fn).parameters
 
 
 def main() -> None:
@@ -87,37 +53,35 @@ def main() -> None:
         args.repeat, args.idle = 1, 2000
     threadpool_limits(1)
     load = os.getloadavg()[0]
-    tmp = Path(tempfile.mkdtemp(prefix="bench_speed_"))
-    build_layout(LAYOUT, tmp, jobs=1)
-    recon = Reconstructor.from_bundle(tmp / "hexagon")
-    lay = Layout()
+    recon = default_reconstructor(Path(tempfile.mkdtemp(prefix="bench_speed_")))
+    lay = Patch()
     p = test_presses(lay, args.truth, args.quick)
-    flt = readings(lay, p["d"], "float", np.random.default_rng(_seed("speed", "float")))
-    q8 = readings(lay, p["d"], "8-bit", np.random.default_rng(_seed("speed", "8-bit")))
+    flt = readings(lay, p["d"], "float", np.random.default_rng(seed("speed", "float")))
+    q8 = readings(lay, p["d"], "8-bit", np.random.default_rng(seed("speed", "8-bit")))
     rng = np.random.default_rng(7)
     sigma = assumed_noise(recon)
     idle_f = rng.normal(size=(args.idle, recon.n_taxels)) * sigma
-    idle_q = np.rint(rng.normal(0.0, 0.15, (args.idle, recon.n_taxels))) * lay.lsb
+    idle_q = np.rint(rng.normal(0.0, COUNT_NOISE, (args.idle, recon.n_taxels))) * lay.lsb
     for x in flt[:5]:  # compile (numba) and warm caches
         recon.solve_deflection(x)
         recon.solve(q8[0])
     sd = recon.solve_deflection
     rows: list[tuple[str, np.ndarray, int]] = []
-    t, h = timed(sd, flt, args.repeat, rng)
+    t, h = per_frame(sd, flt, args.repeat, rng)
     rows.append(("contact, float, solve_deflection(δ)", t, h))
     if takes(sd, "want_traction") and takes(sd, "want_deflection"):
-        t, h = timed(
+        t, h = per_frame(
             lambda x: sd(x, want_traction=False, want_deflection=False), flt, args.repeat, rng
         )
         rows.append(("contact, float, summary only", t, h))
-    t, h = timed(recon.solve, q8, args.repeat, rng)
+    t, h = per_frame(recon.solve, q8, args.repeat, rng)
     rows.append(("contact, 8-bit, solve(ΔC)", t, h))
     if takes(sd, "noise"):
-        t, h = timed(lambda x: sd(x, noise=sigma), idle_f, 1, rng)
+        t, h = per_frame(lambda x: sd(x, noise=sigma), idle_f, 1, rng)
         rows.append(("no contact, float, noise passed", t, h))
-    t, h = timed(sd, idle_f, 1, rng)
+    t, h = per_frame(sd, idle_f, 1, rng)
     rows.append(("no contact, float, no noise passed", t, h))
-    t, h = timed(recon.solve, idle_q, 1, rng)
+    t, h = per_frame(recon.solve, idle_q, 1, rng)
     rows.append(("no contact, 8-bit, solve(ΔC)", t, h))
     c = np.asarray(recon.forward, dtype=np.float64)
     lam = recon.params.get("tikhonov")
@@ -125,7 +89,11 @@ def main() -> None:
     a = np.vstack([c, lam * np.eye(c.shape[1])])
     zeros = np.zeros(c.shape[1])
     base_frames = flt if not args.quick else flt[::2]
-    t, h = timed(lambda d: scipy.optimize.nnls(a, np.concatenate([d, zeros])), base_frames, 1, rng)
+
+    def baseline(d: np.ndarray) -> tuple:
+        return scipy.optimize.nnls(a, np.concatenate([d, zeros]))
+
+    t, h = per_frame(baseline, base_frames, 1, rng)
     rows.append((f"scipy.optimize.nnls [C; λI] ({c.shape[0]}×{c.shape[1]})", t, h))
 
     blas = sorted({f"{i['internal_api']}:{i['num_threads']}" for i in threadpool_info()})
@@ -160,12 +128,12 @@ def main() -> None:
         lines.append(f"  {'ok  ' if v <= lim else 'MISS'} {label}: {v:.0f} µs")
     print("\n".join(lines))
     if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        text = (
-            "# One frame's run time (bench/bench_speed.py)\n\n"
-            f"`.venv/bin/python bench/bench_speed.py --out {args.out}`\n\n```\n"
+        write_block(
+            args.out / "speed.md",
+            "One frame's run time (bench/bench_speed.py)",
+            f".venv/bin/python bench/bench_speed.py --out {args.out}",
+            lines,
         )
-        (args.out / "speed.md").write_text(text + "\n".join(lines) + "\n```\n")
 
 
 if __name__ == "__main__":
