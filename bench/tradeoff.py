@@ -28,49 +28,23 @@ from __future__ import annotations
 import argparse
 import json
 import platform
-import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from benchkit import ROOT
+from benchkit.configs import Config, Pipeline
+from benchkit.protocol import FORCES, INDENTERS, PLACES, positions
+from benchkit.readings import quantised
+from benchkit.stats import iou
+from benchkit.truths import fine_model
 from threadpoolctl import threadpool_limits
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from _common import ROOT, interpolation_matrix, load, timed_build, variant
-from bench_accuracy import INDENTERS, iou, positions
 from tradeoff_report import render
 
-from tactile_contact.inverse.reconstruction import ContactResult, Reconstructor
-from tactile_contact.inverse.solvers import NnlsSolver
-from tactile_contact.inverse.summary import summarize
-from tactile_contact.model.forward import ForwardModel
-from tactile_contact.model.layout import PatchLayout
+from tactile_contact.inverse.reconstruction import Reconstructor
 from tactile_contact.model.sensor import value_count_farad
-from tactile_contact.offline.build import build_patch, forward_matrix, free_inverse, grids_for
-
-
-@dataclass(frozen=True)
-class Config:
-    """One point of the sweep.
-
-    ``sections`` overrides the default layout; ``mode`` is ``taxels`` (solve at the taxels,
-    the default) or ``grid`` (the paper's: readings interpolated onto the traction grid's cell
-    centres, then the square problem); ``dtype`` is the free product's precision; ``passes`` 1
-    runs one NNLS(+Tikhonov) over the whole grid through :class:`NnlsSolver` instead of the
-    library's two-pass solve."""
-
-    key: str
-    name: str
-    factor: str
-    sections: dict[str, dict[str, Any]] = field(default_factory=dict)
-    mode: str = "taxels"
-    dtype: str = "float32"
-    passes: int = 2
-
 
 PINV = {"solver": {"method": "pinv", "refine": "none"}}
 TIKH = {"solver": {"method": "tikhonov", "refine": "none"}}
@@ -136,100 +110,10 @@ QUICK_NOISE = ("0.15 count +offsets",)
 REPEATS = 3
 
 
-def _build(patch: PatchLayout, cfg: Config) -> tuple[dict, dict, dict]:
-    """Bundle contents of a configuration plus bench-side extras (float64 inverse, P)."""
-    manifest, arrays = build_patch(patch)
-    extra: dict[str, Any] = {}
-    reg = arrays.get("regulariser")
-    if cfg.mode == "grid":
-        tg, _ = grids_for(patch)
-        centres = tg.centers()
-        c = forward_matrix(patch, centres, tg)  # point values at the virtual grid nodes
-        inverse, lam = free_inverse(patch, c, reg)
-        extra["interp"] = interpolation_matrix(patch.taxel_xy(), centres)
-        arrays.update(
-            forward=c,
-            inverse=inverse.astype(np.float32),
-            taxel_xy=centres,
-            taxel_ids=np.arange(len(centres)),
-        )
-        manifest["params"]["tikhonov"] = lam
-    else:
-        inverse, _ = free_inverse(patch, arrays["forward"], reg)
-    if cfg.dtype == "float64":
-        extra["inverse64"] = inverse
-    if cfg.passes == 1:
-        p = manifest["params"]
-        extra["nnls"] = NnlsSolver(
-            arrays["forward"], p["tikhonov"], reg, p["nnls_method"]
-        ).prepare()
-    return manifest, arrays, extra
-
-
-class Pipeline:
-    """A configuration's online path: ΔC [F] (K,) → ContactResult, through Reconstructor."""
-
-    def __init__(self, cfg: Config, folder: Path) -> None:
-        self.cfg = cfg
-        (manifest, arrays, extra), self.build_s, self.build_mb = timed_build(
-            _build, variant(cfg.sections), cfg
-        )
-        self.recon: Reconstructor = load(folder, manifest, arrays)
-        if "inverse64" in extra:
-            # Reconstructor has no precision option (it always casts C⁺ to float32); the bench
-            # swaps in the float64 operator, which its product then uses as is.
-            assert self.recon._inverse.shape == extra["inverse64"].shape
-            self.recon._inverse = np.ascontiguousarray(extra["inverse64"])
-        self.interp = extra.get("interp")
-        self.nnls: NnlsSolver | None = extra.get("nnls")
-        r = self.recon
-        self._defl = np.asarray(r.bundle["deflection_operator"], np.float32)
-        self._centres, self._area = r.traction_grid.centers(), r.traction_grid.cell_area
-
-    def frame(self, dc: np.ndarray) -> ContactResult:
-        r = self.recon
-        if self.interp is not None:
-            return r.solve_deflection(self.interp @ r.compression(dc))
-        if self.nnls is None:
-            return r.solve(dc)
-        return self._one_pass(dc)
-
-    def _one_pass(self, dc: np.ndarray) -> ContactResult:
-        """One NNLS over every cell, with the Reconstructor's contact test, summary and
-        deflection product: the ablation of the library's second (support) pass."""
-        r = self.recon
-        delta = r.compression(dc)
-        active = int(np.count_nonzero(np.abs(delta) > r.contact_threshold))
-        if active == 0:
-            return r.solve(dc)  # the library's zero result
-        sol = self.nnls.solve(delta)  # type: ignore[union-attr]
-        q = sol.x
-        p = r.params
-        s = summarize(q, self._centres, self._area, p["rel_threshold"], p["min_pressure"])
-        d = r.deflection_grid.to_image(self._defl @ q.astype(np.float32)).astype(np.float64)
-        return ContactResult(
-            r.traction_grid.to_image(q),
-            d,
-            s.total_force,
-            s.cop,
-            s.contact_area,
-            s.peak_pressure,
-            s.in_contact,
-            "nnls",
-            sol.success,
-            sol.iterations,
-            sol.residual_norm,
-            sol.time_s,
-            active,
-        )
-
-
 def truth(recon: Reconstructor, forces: tuple[float, ...], modules: tuple[int, ...]) -> list:
     """(indenter, position name, force [N], centre [m], contact radius [m], exact ΔC [F])."""
     p = recon.params
-    fm = ForwardModel(
-        recon.taxel_xy, p["thickness"], p["young"], p["poisson"], 2.5e-4, p["taxel_radius"]
-    )
+    fm = fine_model(recon)
     return [
         (
             ind,
@@ -252,8 +136,7 @@ def noisy(cases: list, lsb: float, rms: float, offsets: bool, seed: int) -> list
     out = []
     offset = rng.uniform(-0.5, 0.5, cases[0][5].shape) * lsb if offsets else 0.0
     for ind, pname, f, c, a, dc in cases:
-        q = np.rint((dc + rng.normal(0.0, rms * lsb, dc.shape)) / lsb) * lsb
-        out.append((ind, pname, f, c, a, q + offset))
+        out.append((ind, pname, f, c, a, quantised(dc, lsb, rms, rng) + offset))
     return out
 
 
@@ -351,7 +234,7 @@ def main() -> None:
         return
     configs = [c for c in CONFIGS if not args.quick or c.key in QUICK]
     noises = QUICK_NOISE if args.quick else tuple(NOISE)
-    forces = (0.5, 1.0, 3.0) if args.quick else (0.2, 0.5, 1.0, 1.8, 2.5, 3.0)
+    forces = (0.5, 1.0, 3.0) if args.quick else FORCES
     modules = (4,) if args.quick else (4, 2)
     repeats = 1 if args.quick else REPEATS
     tmp = Path(tempfile.mkdtemp(prefix="tradeoff_"))
@@ -396,7 +279,7 @@ def main() -> None:
         "protocol": {
             "indenters": list(INDENTERS),
             "forces_N": list(forces),
-            "positions": ["over a taxel", "between two", "between three"],
+            "positions": list(PLACES),
             "modules": list(modules),
             "repeats_noisy": repeats,
             "cases": len(exact),
