@@ -1,4 +1,5 @@
-"""Benchmark: dense Love vs Boussinesq–Cerruti assembly, and the regular-grid fast path.
+"""Cost of the elastic operator: dense Love assembly against dense Boussinesq–Cerruti and the
+regular-grid fast path (Toeplitz + FFT), build and product.
 
 For square grids of n × n cells (pitch 1 mm, h = 2 mm, E = 2.1e5 Pa) measured at the cell
 centres, prints coefficients per second of the dense Love and B-C builds, their ratio, the
@@ -14,51 +15,14 @@ both see the same background load on a shared machine; two runs each for the lar
 from __future__ import annotations
 
 import argparse
-import gc
-import time
-from collections.abc import Callable
 
 import numpy as np
+from benchkit.layer import E, H
+from benchkit.timing import best_time, paired_best
 
 from tactile_contact.model.elastic import boussinesq_matrix, love_matrix, regular_grid_operator
 
-PITCH, H, E = 1e-3, 2e-3, 2.1e5
-
-
-def best_time(fn: Callable[[], object], budget: float = 0.5) -> tuple[float, object]:
-    """Best wall time [s] of fn over repeats filling about `budget` seconds (at least 1, at
-    most 50 runs): the minimum filters out other processes on a shared machine."""
-    best, out, spent, runs = np.inf, None, 0.0, 0
-    while runs < 50 and (runs == 0 or spent + best <= budget):
-        out = None
-        gc.collect()
-        t0 = time.perf_counter()
-        out = fn()
-        dt = time.perf_counter() - t0
-        best, spent, runs = min(best, dt), spent + dt, runs + 1
-    return best, out
-
-
-def paired_best(
-    fa: Callable[[], object], fb: Callable[[], object], budget: float = 1.0
-) -> tuple[float, float]:
-    """Best times [s] of fa and fb run alternately (same background load for both), repeating
-    until about `budget` seconds are spent (at least twice each, at most 200 pairs)."""
-    ta = tb = np.inf
-    spent, runs = 0.0, 0
-    while runs < 200 and (runs < 2 or spent + ta + tb <= budget):
-        for fn, which in ((fa, 0), (fb, 1)):
-            gc.collect()
-            t0 = time.perf_counter()
-            fn()
-            dt = time.perf_counter() - t0
-            spent += dt
-            if which == 0:
-                ta = min(ta, dt)
-            else:
-                tb = min(tb, dt)
-        runs += 1
-    return ta, tb
+PITCH = 1e-3
 
 
 def centres(n: int) -> np.ndarray:
@@ -107,7 +71,7 @@ def row(n: int, nu: float) -> dict[str, float]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="grids up to 40×40 only")
     parser.add_argument("--poisson", type=float, default=0.5, help="Poisson ratio (default 0.5)")
     args = parser.parse_args()
