@@ -1,4 +1,5 @@
-"""Benchmark: skin frame decode + period assembly + baseline vs python-can receiving alone.
+"""Cost of each stage of the CAN data path (decode, period assembly, baseline, SkinStream)
+against python-can receiving the same frames alone.
 
 Load: 16 triangles × 100 Hz (3 200 frames/s), the issue's reference load. Everything runs in
 one process on python-can's ``virtual`` bus; the baseline of the table is the cost of
@@ -17,6 +18,7 @@ import uuid
 
 import can
 import numpy as np
+from benchkit.timing import best_of
 
 from tactile_contact.canbus.assembler import PeriodAssembler
 from tactile_contact.canbus.baseline import BaselineTracker
@@ -40,15 +42,6 @@ def make_frames(seconds: float, seed: int = 0) -> tuple[list[can.Message], np.nd
     return msgs, values
 
 
-def best_of(fn, repeats: int) -> float:
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="1 s of traffic, 2 repeats")
@@ -70,7 +63,9 @@ def main() -> None:
 
     channel = f"bench-{uuid.uuid4().hex}"
 
-    def recv_only() -> None:
+    def received(consume=None) -> float:
+        """Seconds to take every frame off a virtual bus (they are queued before the clock
+        starts), passing each to ``consume`` if given (none: the receiving alone)."""
         with (
             can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as tx,
             can.Bus(interface="virtual", channel=channel) as rx,
@@ -78,28 +73,24 @@ def main() -> None:
             for m in msgs:
                 tx.send(m)
             t0 = time.perf_counter()
-            for _ in range(n):
-                rx.recv(timeout=1.0)
-            recv_only.elapsed = time.perf_counter() - t0  # type: ignore[attr-defined]
+            if consume is None:
+                for _ in range(n):
+                    rx.recv(timeout=1.0)
+            else:
+                for _ in range(n):
+                    consume(rx.recv(timeout=1.0))
+            return time.perf_counter() - t0
 
-    def recv_and_assemble() -> None:
+    def recv_and_assemble() -> float:
         a = PeriodAssembler()
-        with (
-            can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as tx,
-            can.Bus(interface="virtual", channel=channel) as rx,
-        ):
-            for m in msgs:
-                tx.send(m)
-            t0 = time.perf_counter()
-            for _ in range(n):
-                a.feed(rx.recv(timeout=1.0))
-            recv_and_assemble.elapsed = time.perf_counter() - t0  # type: ignore[attr-defined]
+        elapsed = received(a.feed)
         # Simulated stamps are kept (preserve_timestamps): bulk sending here is not paced, and
         # wall-clock stamps could put a scheduler pause between a frame A and its B.
         assert a.counters.readings == len(readings), a.counters
+        return elapsed
 
-    t_recv = min(_timed(recv_only) for _ in range(repeats))
-    t_recv_asm = min(_timed(recv_and_assemble) for _ in range(repeats))
+    t_recv = min(received() for _ in range(repeats))
+    t_recv_asm = min(recv_and_assemble() for _ in range(repeats))
     t_decode = best_of(
         lambda: [decode_frame(m.arbitration_id, m.data, m.timestamp) for m in msgs], repeats
     )
@@ -177,11 +168,6 @@ def main() -> None:
         f"CPU share of one core at {frames_per_s:.0f} frames/s: recv alone {100 * cpu_recv:.2f} %,"
         f" SkinStream {100 * cpu_core:.2f} %, total {total:.2f} % (ROS publishing not included)"
     )
-
-
-def _timed(fn) -> float:
-    fn()
-    return fn.elapsed
 
 
 if __name__ == "__main__":
