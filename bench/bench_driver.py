@@ -1,18 +1,14 @@
-"""Cost of the skin driver at 16 triangles × 100 Hz, against python-can receiving alone.
+"""CPU of the skin_driver node at 16 triangles × 100 Hz against python-can receiving alone.
 
-Three measurements in one run (python bench/bench_driver.py [--seconds S]):
+Live, on a python-can ``virtual`` bus fed at 16 triangles × 2 frames × 100 Hz = 3200 frames/s
+by a sender thread in the same process: (a) baseline: a thread doing nothing but
+``bus.recv()``; (b) the real ``skin_driver`` node (receive thread + executor) publishing
+``<patch>/taxels``. For each: CPU share of the whole process (process CPU time / wall time)
+and of the receiving thread alone (from /proc/self/task/<tid>/stat), and their ratios b/a.
+The node must publish at the frame rate. The decode cost per frame without a bus (codec,
+SkinStream) is bench/bench_codec.py's.
 
-1. Decode cost per frame, offline (no bus): the codec's PeriodAssembler alone, then the whole
-   ROS-free data path (SkinStream: assembler + patch gathering + baseline → ΔC).
-2. Live, on a python-can ``virtual`` bus fed at 16 triangles × 2 frames × 100 Hz = 3200
-   frames/s by a sender thread in the same process:
-   (a) baseline: a thread doing nothing but ``bus.recv()``;
-   (b) the real ``skin_driver`` node (receive thread + executor) publishing ``<patch>/taxels``.
-   For each: CPU share of the whole process (process CPU time / wall time) and of the receiving
-   thread alone (from /proc/self/task/<tid>/stat), and their ratios b/a.
-
-Correctness first: the offline path must produce one patch reading per period and the node
-must publish at the frame rate before any time is reported.
+    python bench/bench_driver.py [--seconds S]
 """
 
 from __future__ import annotations
@@ -28,8 +24,7 @@ import can
 import numpy as np
 import yaml
 
-from tactile_contact.canbus import assembler, codec
-from tactile_contact.model.layout import load_layout
+from tactile_contact.canbus import codec
 
 N_TRIANGLES = 16
 RATE_HZ = 100.0
@@ -69,26 +64,6 @@ def thread_cpu_s(tid: int) -> float:
     """utime + stime [s] of one thread of this process (Linux /proc)."""
     fields = Path(f"/proc/self/task/{tid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def offline(path: Path, periods: int) -> dict[str, float]:
-    from tactile_contact.canbus.stream import SkinStream
-
-    rng = np.random.default_rng(0)
-    frames = [m for k in range(periods) for m in period_frames(k, rng, 0.0)]
-    asm = assembler.PeriodAssembler(modules=[(0, t) for t in range(N_TRIANGLES)])
-    t = time.perf_counter()
-    readings = asm.feed_many(frames)
-    codec_s = time.perf_counter() - t
-    assert len(readings) == periods * N_TRIANGLES, "assembler lost readings"
-    stream = SkinStream(load_layout(path).patches, period_s=1 / RATE_HZ)
-    t = time.perf_counter()
-    out = []
-    for m in frames:
-        out += stream.feed(m, 0.0)
-    stream_s = time.perf_counter() - t
-    assert len(out) == periods, f"{len(out)} patch readings for {periods} periods"
-    return {"codec_us": 1e6 * codec_s / len(frames), "stream_us": 1e6 * stream_s / len(frames)}
 
 
 class Sender:
@@ -191,24 +166,15 @@ def driver_node(seconds: float, path: Path) -> dict[str, float]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=5.0, help="measurement time per case [s]")
-    ap.add_argument("--periods", type=int, default=500, help="periods for the offline timing")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         path = layout_file(Path(tmp))
-        off = offline(path, args.periods)
         alone = python_can_alone(args.seconds)
         node = driver_node(args.seconds, path)
     frames_per_s = N_TRIANGLES * 2 * RATE_HZ
     print(f"16 triangles x {RATE_HZ:.0f} Hz = {frames_per_s:.0f} frames/s, {os.cpu_count()} cores")
-    print("\noffline decode cost per frame")
-    print(f"  codec PeriodAssembler          {off['codec_us']:8.2f} us")
-    print(
-        f"  SkinStream (+gather, baseline)  {off['stream_us']:8.2f} us"
-        f"   ratio {off['stream_us'] / off['codec_us']:.1f}x"
-        f"   = {off['stream_us'] * frames_per_s / 1e4:.1f} % of one core at this rate"
-    )
     print("\nlive on a virtual bus      process CPU   rx-thread CPU   output rate")
     for label, r, unit in (
         ("python-can recv alone", alone, "frames/s"),
