@@ -41,6 +41,7 @@ setup(
             "tactile-contact = tactile_contact.ros.cli:main",
             "tactile-contact-calibrate = tactile_contact.offline.calibrate:main",
             "tactile-contact-presses = tactile_contact.offline.presses:main_presses",
+            "tactile-contact-import-icub = tactile_contact.offline.icub.cli:main",
         ],
     },
 )
