@@ -369,6 +369,7 @@ class _Ctx:
         hi_open: bool = False,
         integer: bool = False,
         optional: bool = False,
+        unit: str = "",
     ) -> Any:
         p = f"{path}.{key}"
         if key not in d or d[key] is None:
@@ -389,7 +390,12 @@ class _Ctx:
         if lo is not None and (v < lo or (lo_open and v == lo)):
             raise self.err(p, f"must be {'>' if lo_open else '>='} {lo}, got {v!r}")
         if hi is not None and (v > hi or (hi_open and v == hi)):
-            raise self.err(p, f"must be {'<' if hi_open else '<='} {hi}, got {v!r}")
+            text = f"must be {'<' if hi_open else '<='} {hi}" + (f" {unit}" if unit else "")
+            if unit == "m" and (lo is None or v * 1e-3 > lo) and v * 1e-3 <= hi:
+                # (the likeliest slip: a length written in millimetres)
+                text += f", got {v!r}: millimetres given? {v:g} mm is {v * 1e-3:g} m"
+                raise self.err(p, text + " (lengths are in metres)")
+            raise self.err(p, f"{text}, got {v!r}")
         return int(v) if integer else float(v)
 
     def choice(
@@ -490,7 +496,7 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
     )
     kind = c.choice(mod, "kind", f"{path}.model", "love", MODELS)
     elast = Elastomer(
-        thickness=c.number(e, "thickness", ep, 2.0e-3, lo=0.0, lo_open=True, hi=0.1),
+        thickness=c.number(e, "thickness", ep, 2.0e-3, lo=0.0, lo_open=True, hi=0.1, unit="m"),
         young=c.number(e, "young", ep, 2.1e5, lo=0.0, lo_open=True),
         # ν = 0.5 (incompressible, Ecoflex) is fine for both models: every kernel stays finite.
         # Beyond 0.5 the material would be unstable; ν ≤ −1 likewise.
@@ -513,7 +519,7 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
         kind,
         psi if isinstance(psi, str) else float(psi),
         tav,
-        c.number(mod, "footprint_radius", mp, None, lo=0.0, hi=0.02),
+        c.number(mod, "footprint_radius", mp, None, lo=0.0, hi=0.02, unit="m"),
         c.number(mod, "gain", mp, 1.0, lo=0.05, hi=20.0),
         c.number(mod, "layer_scale", mp, 1.0, lo=0.25, hi=4.0),
     )
@@ -529,7 +535,7 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
     if "area" in s:
         radius = math.sqrt(c.number(s, "area", sp, 0.0, lo=0.0, lo_open=True) / math.pi)
     else:
-        radius = c.number(s, "taxel_radius", sp, 2.0e-3, lo=0.0, lo_open=True, hi=0.02)
+        radius = c.number(s, "taxel_radius", sp, 2.0e-3, lo=0.0, lo_open=True, hi=0.02, unit="m")
     sensor = SensorSpec(
         epsilon_r=c.number(s, "epsilon_r", sp, 4.37, lo=1.0),
         taxel_radius=radius,
@@ -546,11 +552,13 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
     )
     gp = f"{path}.grid"
     grid = GridSpec(
-        traction_cell=c.number(g, "traction_cell", gp, 2.0e-3, lo=1e-4, hi=0.05),
-        deflection_cell=c.number(g, "deflection_cell", gp, 1.0e-3, lo=1e-4, hi=0.05),
-        margin=c.number(g, "margin", gp, 3.0e-3, lo=0.0, hi=0.1),
+        traction_cell=c.number(g, "traction_cell", gp, 2.0e-3, lo=1e-4, hi=0.05, unit="m"),
+        deflection_cell=c.number(g, "deflection_cell", gp, 1.0e-3, lo=1e-4, hi=0.05, unit="m"),
+        margin=c.number(g, "margin", gp, 3.0e-3, lo=0.0, hi=0.1, unit="m"),
         mask=c.choice(g, "mask", gp, "taxels", MASKS),
-        mask_distance=c.number(g, "mask_distance", gp, 3.5e-3, lo=0.0, lo_open=True, hi=0.1),
+        mask_distance=c.number(
+            g, "mask_distance", gp, 3.5e-3, lo=0.0, lo_open=True, hi=0.1, unit="m"
+        ),
     )
 
     so = c.mapping(d.get("solver"), f"{path}.solver", tuple(SolverSpec.__dataclass_fields__))
@@ -561,10 +569,12 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
         tikhonov=_number_or_rule(c, so, "tikhonov", sop, 0.1, lo=0.0, hi=10.0),
         rcond=c.number(so, "rcond", sop, 1e-3, lo=0.0, lo_open=True, hi=1.0),
         tsvd_rank=_number_or_rule(c, so, "tsvd_rank", sop, "discrepancy", lo=1, integer=True),
-        noise=c.number(so, "noise", sop, 6.0e-6, lo=0.0, hi=1e-3),
-        contact_threshold=c.number(so, "contact_threshold", sop, 1.1e-5, lo=0.0, hi=1e-3),
+        noise=c.number(so, "noise", sop, 6.0e-6, lo=0.0, hi=1e-3, unit="m"),
+        contact_threshold=c.number(so, "contact_threshold", sop, 1.1e-5, lo=0.0, hi=1e-3, unit="m"),
         nnls_method=c.choice(so, "nnls_method", sop, "bpp", ("bpp", "fista")),
-        support_radius=c.number(so, "support_radius", sop, 4.0e-3, lo=0.0, lo_open=True, hi=0.1),
+        support_radius=c.number(
+            so, "support_radius", sop, 4.0e-3, lo=0.0, lo_open=True, hi=0.1, unit="m"
+        ),
         seed_fraction=c.number(so, "seed_fraction", sop, 0.3, lo=0.0, hi=1.0),
         area_rel_threshold=c.number(
             so, "area_rel_threshold", sop, 0.1, lo=0.0, hi=1.0, hi_open=True
