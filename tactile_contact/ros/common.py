@@ -8,7 +8,8 @@ Everything here is a thin convenience over rclpy; no node logic lives in this mo
   ``builtin_interfaces/Time``.
 - :func:`declare_parameter`: declare with a descriptor (description, unit, range or choices) and
   return the value; out-of-range or unknown choices are rejected at declaration and on later sets.
-- :func:`log_parameters`: one info line per parameter, at start.
+- :func:`log_parameters`: one info line at start with the parameters set away from their
+  defaults (every value at debug level).
 - :func:`diagnostic_status`: a ``DiagnosticStatus`` from a name, level, message and key/values.
 - :func:`run_node`: the standard ``main()`` of a node executable.
 """
@@ -83,6 +84,7 @@ def seconds_from_stamp(stamp: Time) -> float:
 STRING_ARRAY_EMPTY: Any = object()
 
 _CHOICES_ATTR = "_tactile_contact_parameter_choices"
+_DEFAULTS_ATTR = "_tactile_contact_parameter_defaults"
 
 
 def _check_choices(node: Node, params: Sequence[Parameter]) -> SetParametersResult:
@@ -144,6 +146,9 @@ def declare_parameter(
             setattr(node, _CHOICES_ATTR, {})
             node.add_on_set_parameters_callback(lambda ps: _check_choices(node, ps))
         getattr(node, _CHOICES_ATTR)[name] = tuple(choices)
+    if not hasattr(node, _DEFAULTS_ATTR):
+        setattr(node, _DEFAULTS_ATTR, {})
+    getattr(node, _DEFAULTS_ATTR)[name] = [] if default is STRING_ARRAY_EMPTY else default
     if default is STRING_ARRAY_EMPTY:
         value = node.declare_parameter(name, Parameter.Type.STRING_ARRAY, descriptor).value
         if value is None:  # no override: give it a typed empty value so get_parameter works
@@ -155,9 +160,22 @@ def declare_parameter(
 
 
 def log_parameters(node: Node, names: Iterable[str]) -> None:
-    """Log ``name = value`` for each parameter, one line each (at start, for the record)."""
-    for name in names:
-        node.get_logger().info(f"parameter {name} = {node.get_parameter(name).value!r}")
+    """Log the parameters at start, for the record: one info line naming those set away from
+    their declared defaults (the rest are the defaults of config/<node>.yaml), and every value
+    in one debug line (``--ros-args --log-level <node>:=debug``)."""
+    defaults: dict[str, Any] = getattr(node, _DEFAULTS_ATTR, {})
+    values = {name: node.get_parameter(name).value for name in names}
+    for name, v in values.items():
+        if isinstance(v, (tuple, list)) or type(v).__name__ == "array":
+            values[name] = list(v)
+    changed = [f"{n}={v!r}" for n, v in values.items() if n not in defaults or v != defaults[n]]
+    rest = len(values) - len(changed)
+    log = node.get_logger()
+    if changed:
+        log.info(f"parameters: {', '.join(changed)} (the other {rest} at their defaults)")
+    else:
+        log.info(f"parameters: all {rest} at their defaults")
+    log.debug("every parameter: " + ", ".join(f"{n}={v!r}" for n, v in values.items()))
 
 
 def diagnostic_status(
