@@ -2,7 +2,11 @@
 
 A thin adapter over :class:`tactile_contact.inverse.reconstruction.Reconstructor`: one bundle per
 patch, loaded at start (a stale or broken bundle is refused with one log line and the other
-patches go on). Per patch it subscribes to ``<patch>/taxels`` and publishes
+patches go on). With ``layout`` set, every patch of that layout must have a bundle: one that has
+none, or none usable, is an ERROR in /diagnostics and a warning at start naming the
+``tactile-contact-build`` command that makes it. Each contact is logged when it starts (its
+force and place) and when it ends (its peak force and duration). Per patch it subscribes to
+``<patch>/taxels`` and publishes
 
 - ``<patch>/contact`` (tactile_contact/ContactState), every frame;
 - ``<patch>/traction`` (sensor_msgs/Image 32FC1, Pa) and ``<patch>/deflection`` (32FC1, m);
@@ -40,6 +44,7 @@ from visualization_msgs.msg import MarkerArray
 
 from tactile_contact.inverse.detection import NoiseTracker
 from tactile_contact.inverse.reconstruction import Reconstructor
+from tactile_contact.model.layout import load_layout
 from tactile_contact.msg import ContactState, GridGeometry, TaxelArray
 from tactile_contact.offline.bundle import load_bundle
 from tactile_contact.ros import convert
@@ -65,6 +70,9 @@ threadpool_limits(limits=1, user_api="blas")
 LOG_THROTTLE_S = 5.0
 #: Subscribers to the optional outputs (images, markers, cloud) are counted this often [s].
 SUBSCRIBERS_RECOUNT_S = 0.2
+#: A contact has ended (and is logged so) after frames without contact for this long [s] of
+#: their stamps: a frame or two lost near the detection threshold does not split a press.
+CONTACT_END_S = 0.25
 
 OUTPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
 QUIET_EVENTS = PublisherEventCallbacks(use_default_callbacks=False)
@@ -79,6 +87,7 @@ _UNUSABLE = (
 
 PARAMETERS = (
     "bundles_dir",
+    "layout",
     "patches",
     "queue_depth",
     "visualization_every",
@@ -106,6 +115,9 @@ class PatchStats:
     out_of_range: int = 0
     unpublishable: int = 0
     internal_errors: int = 0
+    contacts: int = 0  # contacts started (a press, from its first frame to CONTACT_END_S after)
+    contact_frames: int = 0
+    peak_force: float = 0.0  # largest total force [N] of any frame
     last_error: str = ""
     latency_s: deque = field(default_factory=lambda: deque(maxlen=1000))
     stage_s: dict = field(default_factory=dict)
@@ -157,6 +169,10 @@ class PatchPipeline:
         self.bundle_problem = ""  # why the bundle on disk is not the one in use ("" if it is)
         self.reloads = 0
         self._logged: dict[str, float] = {}  # fault kind → monotonic time last logged
+        # The contact being followed in the log: (stamp of its first frame, of its last, its
+        # peak force [N]); None between contacts.
+        self._contact: tuple[float, float, float] | None = None
+        self._last_frame = -math.inf  # monotonic time of the last frame taken [s]
         p = self.name
 
         def publisher(msg_type: Any, topic: str, qos: QoSProfile) -> Any:
@@ -261,6 +277,7 @@ class PatchPipeline:
     def _on_taxels(self, msg: TaxelArray) -> None:
         stats = self.stats
         stats.frames += 1
+        self._last_frame = time.monotonic()
         t0 = time.perf_counter()
         if msg.patch and msg.patch != self.name:
             stats.foreign_frames += 1
@@ -324,10 +341,50 @@ class PatchPipeline:
         else:
             stats.solved += 1
             stats.constrained += int(result.solver == "nnls")
+        self._follow_contact(seconds_from_stamp(msg.header.stamp), result)
         if not want_deflection:
             stats.skipped_deflection += 1
         self._publish(msg, result, delta_c, valid, t0)
         stats.time("publish", time.perf_counter() - t2)
+
+    def _follow_contact(self, stamp: float, result: Any) -> None:
+        """Count contacts and log one line when each starts and one when it ends."""
+        force = float(result.total_force) if result.in_contact else 0.0
+        if not math.isfinite(force):
+            return  # (refused by check_result, said there)
+        c = self._contact
+        if result.in_contact:
+            self.stats.contact_frames += 1
+            self.stats.peak_force = max(self.stats.peak_force, force)
+            if c is None:
+                self.stats.contacts += 1
+                x, y = (float(v) * 1e3 for v in result.cop)
+                self.node.get_logger().info(
+                    f"patch {self.name}: contact: {force:.2f} N at ({x:.1f}, {y:.1f}) mm"
+                )
+                self._contact = (stamp, stamp, force)
+            else:
+                self._contact = (c[0], stamp, max(c[2], force))
+        elif c is not None and stamp - c[1] >= CONTACT_END_S:
+            self.end_contact()
+
+    def end_contact(self) -> None:
+        """Log the end of the contact being followed (if any)."""
+        c, self._contact = self._contact, None
+        if c is not None:
+            self.node.get_logger().info(
+                f"patch {self.name}: contact ended: peak {c[2]:.2f} N, {c[1] - c[0]:.2f} s"
+            )
+
+    def summary(self) -> str:
+        """One line: what this patch took, found and dropped since start."""
+        s = self.stats
+        dropped = s.bad_frames + s.foreign_frames + s.unpublishable + s.internal_errors
+        text = (
+            f"{self.name}: {s.frames} frames, {s.contacts} contact(s) in {s.contact_frames} "
+            f"frames, peak force {s.peak_force:.2f} N"
+        )
+        return text + (f", {dropped} frame(s) dropped ({s.last_error})" if dropped else "")
 
     def _publish(
         self, msg: TaxelArray, result: Any, delta_c: np.ndarray, valid: np.ndarray, t0: float
@@ -398,6 +455,8 @@ class PatchPipeline:
 
     def diagnostics(self) -> Any:
         s = self.stats
+        if self._contact is not None and time.monotonic() - self._last_frame > 1.0:
+            self.end_contact()  # frames stopped during a contact (a replay, a driver stopped)
         values: dict[str, object] = {
             "bundle": str(self.bundle),
             "frames": s.frames,
@@ -414,6 +473,9 @@ class PatchPipeline:
             "out_of_range_readings": s.out_of_range,
             "unpublishable": s.unpublishable,
             "internal_errors": s.internal_errors,
+            "contacts": s.contacts,
+            "contact_frames": s.contact_frames,
+            "peak_force_n": s.peak_force,
             "bundle_reloads": self.reloads,
             "bundle_problem": self.bundle_problem,
             "noise_median_um": float(np.median(self.noise.sigma) * 1e6),
@@ -493,6 +555,13 @@ class ContactReconstructionNode(Node):
                 self, "bundles_dir", "bundles", "folder holding one matrix bundle per patch"
             )
         ).expanduser()
+        self.layout = declare_parameter(
+            self,
+            "layout",
+            "",
+            "patch layout YAML the bundles are built from: each of its patches needs a bundle "
+            "(ERROR in /diagnostics without one); empty: serve the bundles in bundles_dir",
+        )
         requested = declare_parameter(
             self,
             "patches",
@@ -547,17 +616,22 @@ class ContactReconstructionNode(Node):
             try:
                 recon = load_reconstructor(path, self.follow_contacts)
             except Exception as exc:  # every refusal is reported; other patches go on
-                self.load_errors[name] = f"{path}: {exc}"
+                self.load_errors[name] = self._unusable(path, exc)
                 self._refused[path] = sig
-                self.get_logger().error(f"patch {name}: bundle refused: {path}: {exc}")
+                self.get_logger().warning(f"patch {name}: {self.load_errors[name]}")
                 continue
             self.pipelines[recon.patch] = PatchPipeline(self, recon, path, sig)
             self.get_logger().info(
                 f"patch {recon.patch}: {len(recon.taxel_ids)} taxels, "
                 f"traction grid {recon.traction_grid.shape}, bundle {path}"
             )
-        if not self.pipelines:
-            self.get_logger().error(f"no usable bundle in {self.bundles_dir}")
+        if "*" in self.load_errors:
+            self.get_logger().warning(self.load_errors["*"])
+        elif not self.pipelines and not self.load_errors:
+            self.load_errors["*"] = (
+                f"no bundle in {self.bundles_dir}: build them with {self.build_command()}"
+            )
+            self.get_logger().warning(self.load_errors["*"])
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
         # One period's diagnostics work in steps, one patch a step: done at once for 24
         # patches it took ≈ 10 ms, which every frame arriving meanwhile waited for (its p99
@@ -566,13 +640,35 @@ class ContactReconstructionNode(Node):
         self._diag_done: dict[str, Any] = {}
         self.create_timer(period / (len(self.pipelines) + 1), self.diagnostics_step)
 
+    def build_command(self) -> str:
+        """The command that builds the bundles this node looks for."""
+        return f"tactile-contact-build {self.layout or 'LAYOUT.yaml'} -o {self.bundles_dir}"
+
+    def _unusable(self, path: Path, exc: BaseException) -> str:
+        """Why the bundle at ``path`` cannot serve, and the command that builds it."""
+        text = str(exc)
+        if str(path) not in text:  # (the bundle errors name the folder already)
+            text = f"{path}: {text}"
+        verb = "no bundle" if not path.exists() else "bundle refused"
+        return f"{verb} ({text}); build it with {self.build_command()}"
+
     def _bundle_paths(self, requested: list[str]) -> dict[str, Path]:
+        if self.layout and not requested:
+            # LayoutError (file, key and problem) ends the start, as a bad parameter does
+            requested = [p.name for p in load_layout(self.layout).patches]
         if requested:
             return {name: self.bundles_dir / name for name in requested}
         if not self.bundles_dir.is_dir():
-            self.load_errors["*"] = f"{self.bundles_dir}: no such folder"
+            self.load_errors["*"] = (
+                f"{self.bundles_dir}: no such folder; build the bundles with {self.build_command()}"
+            )
             return {}
         return {p.name: p for p in sorted(self.bundles_dir.iterdir()) if p.is_dir()}
+
+    def summary(self) -> list[str]:
+        """A line per patch: frames, contacts, peak force, drops; or why it was not served."""
+        lines = [p.summary() for p in self.pipelines.values()]
+        return lines + [f"{name}: not served: {error}" for name, error in self.load_errors.items()]
 
     def watch_bundles(self) -> None:
         """Notice bundles deleted or replaced on disk since they were loaded.
@@ -621,8 +717,8 @@ class ContactReconstructionNode(Node):
                 recon = load_reconstructor(path, self.follow_contacts)
             except Exception as exc:
                 self._refused[path] = sig
-                self.load_errors[name] = f"{path}: {exc}"
-                log.error(f"patch {name}: bundle refused: {path}: {exc}")
+                self.load_errors[name] = self._unusable(path, exc)
+                log.error(f"patch {name}: {self.load_errors[name]}")
                 continue
             if recon.patch in self.pipelines:
                 continue
