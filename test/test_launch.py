@@ -64,7 +64,9 @@ def test_every_executable_is_installed() -> None:
 
 def test_every_file_the_launch_file_names_exists() -> None:
     text = LAUNCH.read_text()
-    for folder, name in re.findall(r'\[share, "(\w+)", "([\w.]+)"\]', text):
+    named = re.findall(r'shared\("(\w+)", "([\w.]+)"\)', text)
+    assert len(named) >= 5, named  # three parameter files, the layout, the rviz configuration
+    for folder, name in named:
         assert (ROOT / folder / name).is_file(), f"{folder}/{name} named by the launch file"
         assert folder in ("config", "rviz", "launch")
     assert re.search(
@@ -138,3 +140,54 @@ def test_every_launch_argument_is_documented() -> None:
         if m:
             rows[m.group(1)] = (m.group(2), m.group(3))
     assert rows == {name: (default, text) for name, default, text in arguments}
+
+
+def test_every_test_that_runs_ros2_checks_for_it_first() -> None:
+    """``ros2`` comes from ``make ros-launch`` (or a full ROS install): a test that runs it must
+    skip, with the reason, where it is missing (a clone with nothing beside it), so each test
+    of test_ros_install.py that names a ``ros2`` command calls ``_require_ros2()`` first."""
+    tree = ast.parse((ROOT / "test" / "test_ros_install.py").read_text())
+    helpers = {
+        f.name: f for f in tree.body if isinstance(f, ast.FunctionDef) and f.name.startswith("_")
+    }
+
+    def runs_ros2(f: ast.FunctionDef, seen: frozenset[str] = frozenset()) -> bool:
+        for n in ast.walk(f):
+            text = n.value if isinstance(n, ast.Constant) else None
+            if isinstance(text, str) and re.search(r"(^|&& |exec )ros2 ", text):
+                return True
+            if isinstance(n, ast.Call) and getattr(n.func, "id", None) in helpers:
+                name = n.func.id  # type: ignore[attr-defined]
+                if name not in seen and runs_ros2(helpers[name], seen | {f.name}):
+                    return True
+        return False
+
+    tests = [f for f in tree.body if isinstance(f, ast.FunctionDef) and f.name.startswith("test")]
+    unchecked = []
+    for f in tests:
+        first = next(
+            (i for i, st in enumerate(f.body) if "_require_ros2()" in ast.unparse(st)), None
+        )
+        if runs_ros2(f) and (first is None or first > 1):
+            unchecked.append(f.name)
+    assert not unchecked, f"run ros2 without _require_ros2() first: {unchecked}"
+
+
+def test_a_multicast_channel_names_its_port() -> None:
+    """The launch file's simulation channel (GROUP:PORT) as the driver and simulator open it:
+    python-can binds a udp_multicast bus to its port, so the port keeps simulations apart."""
+    from tactile_contact.canbus.stream import bus_kwargs
+
+    assert bus_kwargs("udp_multicast", "239.74.163.2:43156") == {
+        "interface": "udp_multicast",
+        "channel": "239.74.163.2",
+        "port": 43156,
+    }
+    assert bus_kwargs("udp_multicast", "239.74.163.2")["channel"] == "239.74.163.2"
+    assert bus_kwargs("socketcan", "can0", 500_000) == {
+        "interface": "socketcan",
+        "channel": "can0",
+        "bitrate": 500_000,
+    }
+    with pytest.raises(ValueError, match="port 70000"):
+        bus_kwargs("udp_multicast", "239.1.2.3:70000")

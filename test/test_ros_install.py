@@ -14,7 +14,10 @@ test`` sets both where ../shared/ros-launch exists, .ci/run always), where they 
 
 ``ros2 launch … use_simulator:=true`` runs the simulator and the driver as separate processes,
 so they share the bus through python-can's ``udp_multicast`` interface on loopback (this
-kernel has no vcan); each test run takes a multicast group of its own.
+kernel has no vcan). python-can binds such a bus to its port on all addresses, and Linux
+delivers every group joined on the machine at that port to it: each test run takes a port of
+its own (from its pid, or through the launch file's default, from its ROS_DOMAIN_ID), not only
+a group.
 """
 
 from __future__ import annotations
@@ -134,6 +137,19 @@ class Shell:
             time.sleep(0.1)
         return False
 
+    def leftovers(self, timeout_s: float = 10.0) -> bool:
+        """Whether a process of the command's process group is still alive ``timeout_s`` after
+        the command itself ended (an orphan: launch started it and did not stop it)."""
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            try:
+                os.killpg(self.proc.pid, 0)
+            except ProcessLookupError:
+                return False
+            time.sleep(0.2)
+        os.killpg(self.proc.pid, signal.SIGKILL)  # (not left behind for the next test)
+        return True
+
     def interrupt(self, timeout_s: float = 30.0) -> int:
         """Ctrl-C to the whole group, as a terminal sends it; the exit code."""
         os.killpg(self.proc.pid, signal.SIGINT)
@@ -218,17 +234,25 @@ def test_colcon_installs_an_ament_package(workspace: Path) -> None:
         "from rclpy.serialization import serialize_message, deserialize_message; "
         "x = deserialize_message(serialize_message(ContactState(total_force=1.5)), ContactState); "
         "assert x.total_force == 1.5; print(tactile_contact.__file__); print(m.__file__)' "
-        "&& command -v tactile-contact-build && ros2 pkg prefix tactile_contact "
-        "&& ros2 pkg executables tactile_contact",
+        "&& command -v tactile-contact-build",
     )
     assert probe.returncode == 0, probe.stdout + probe.stderr
-    lines = probe.stdout.splitlines()
-    package, messages, tool, where = lines[:4]
+    package, messages, tool = probe.stdout.splitlines()[:3]
     assert package.startswith(str(prefix)), probe.stdout
     assert messages.startswith(str(prefix)), probe.stdout
     assert tool == str(prefix / "bin" / "tactile-contact-build"), probe.stdout
-    assert where == str(prefix), probe.stdout
-    assert sorted(lines[4:]) == sorted(f"tactile_contact {exe}" for exe in EXECUTABLES)
+
+
+def test_ros2_pkg_finds_the_install(workspace: Path) -> None:
+    _require_ros2()
+    prefix = workspace / "install" / "tactile_contact"
+    probe = _run(
+        workspace, "ros2 pkg prefix tactile_contact && ros2 pkg executables tactile_contact"
+    )
+    assert probe.returncode == 0, probe.stdout + probe.stderr
+    lines = probe.stdout.splitlines()
+    assert lines[0] == str(prefix), probe.stdout
+    assert sorted(lines[1:]) == sorted(f"tactile_contact {exe}" for exe in EXECUTABLES)
 
 
 def test_ros2_run_starts_the_driver_and_ctrl_c_stops_it(workspace: Path) -> None:
@@ -248,9 +272,77 @@ def test_ros2_run_starts_the_driver_and_ctrl_c_stops_it(workspace: Path) -> None
 def test_ros2_launch_with_the_simulator(
     workspace: Path, bundles: Path, ros_context: object
 ) -> None:
-    """The README's launch line: contacts with a force arrive, /diagnostics says OK, Ctrl-C
-    ends every process cleanly."""
+    """The README's launch line with a bus named: contacts with a force arrive, /diagnostics
+    says OK, Ctrl-C ends every process cleanly."""
     _require_ros2()
+    group = f"239.{random.randint(1, 254)}.{random.randint(1, 254)}.{random.randint(1, 254)}"
+    port = 20000 + os.getpid() % 20000
+    _launch_until_contact(
+        workspace,
+        ros_context,
+        f"use_simulator:=true scenario:=press interface:=udp_multicast channel:={group}:{port} "
+        f"bundles:={bundles}",
+    )
+
+
+def test_ros2_launch_with_the_simulator_and_nothing_else_given(
+    workspace: Path, bundles: Path, ros_context: object
+) -> None:
+    """The obvious line on a PC without CAN: the launch picks a bus the processes share."""
+    _require_ros2()
+    output = _launch_until_contact(
+        workspace, ros_context, f"use_simulator:=true scenario:=press bundles:={bundles}"
+    )
+    port = 43113 + int(os.environ.get("ROS_DOMAIN_ID", "0"))
+    assert f"skin bus: udp_multicast:239.74.163.2:{port}" in output, output
+
+
+def test_ros2_launch_without_rviz2_says_so_and_runs_the_rest(
+    workspace: Path, bundles: Path, ros_context: object
+) -> None:
+    """use_rviz:=true where rviz2 is not installed: a warning, the nodes run, Ctrl-C ends them
+    all (nothing orphaned)."""
+    _require_ros2()
+    if _run(workspace, "ros2 pkg prefix rviz2").returncode == 0:
+        pytest.skip("rviz2 is installed here (it would open a window)")
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+
+    launch = Shell(
+        workspace,
+        "ros2 launch tactile_contact skin.launch.py use_rviz:=true interface:=virtual "
+        f"channel:=rviz{os.getpid()} bundles:={bundles}",
+    )
+    node = Node("launch_probe", context=ros_context)
+    seen: set[str] = set()
+    node.create_subscription(
+        DiagnosticArray, "/diagnostics", lambda m: seen.update(s.name for s in m.status), 50
+    )
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    try:
+        end = time.monotonic() + 240.0
+        while time.monotonic() < end and launch.proc.poll() is None:
+            executor.spin_once(timeout_sec=0.1)
+            if {"skin_driver: CAN bus", "contact_reconstruction: hexagon"} <= seen:
+                break
+        assert launch.proc.poll() is None, f"launch ended:\n{launch.output}"
+        assert "contact_reconstruction: hexagon" in seen, (seen, launch.output)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        code = launch.interrupt()
+    assert "rviz2 is not installed, not started" in launch.output, launch.output
+    assert code == 0, launch.output
+    assert launch.output.count("process has finished cleanly") == 2, launch.output
+    assert not launch.leftovers(), f"processes left running:\n{launch.output}"
+
+
+def _launch_until_contact(workspace: Path, ros_context: object, arguments: str) -> str:
+    """``ros2 launch tactile_contact skin.launch.py ARGUMENTS`` until contacts with a force
+    arrive and /diagnostics says OK for the driver and the reconstruction; then Ctrl-C, which
+    must end every process cleanly (none left behind). Its output."""
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
@@ -258,13 +350,8 @@ def test_ros2_launch_with_the_simulator(
 
     from tactile_contact.msg import ContactState
 
-    group = f"239.{random.randint(1, 254)}.{random.randint(1, 254)}.{random.randint(1, 254)}"
     start = time.monotonic()
-    launch = Shell(
-        workspace,
-        "ros2 launch tactile_contact skin.launch.py use_simulator:=true scenario:=press "
-        f"interface:=udp_multicast channel:={group} bundles:={bundles}",
-    )
+    launch = Shell(workspace, f"ros2 launch tactile_contact skin.launch.py {arguments}")
     node = Node("launch_probe", context=ros_context)
     forces: list[float] = []
     levels: dict[str, int] = {}
@@ -292,7 +379,7 @@ def test_ros2_launch_with_the_simulator(
         return bool(driver and recon and max(driver) == 0 and max(recon) == 0)
 
     try:
-        end = time.monotonic() + 90.0
+        end = time.monotonic() + 240.0  # (a busy 2-core machine: minutes to start)
         while time.monotonic() < end and not (any(f > 0 for f in forces) and healthy()):
             executor.spin_once(timeout_sec=0.1)
             if launch.proc.poll() is not None:
@@ -310,3 +397,5 @@ def test_ros2_launch_with_the_simulator(
     assert launch.output.count("process has finished cleanly") == 3, launch.output
     # The parameter files were found in the install (a missing one is only a warning).
     assert "Parameter file path is not a file" not in launch.output, launch.output
+    assert not launch.leftovers(), f"processes left running:\n{launch.output}"
+    return launch.output

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import re
 import threading
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -45,6 +46,7 @@ __all__ = [
     "PatchFrame",
     "ReplayBus",
     "SkinStream",
+    "bus_kwargs",
     "close_bus",
     "open_bus",
 ]
@@ -108,6 +110,26 @@ class ReplayBus:
         self._reader.stop()
 
 
+def bus_kwargs(interface: str, channel: str, bitrate: int = 0) -> dict:
+    """``can.Bus`` keywords for ``interface`` and ``channel`` (``bitrate`` 0: left out).
+
+    For ``udp_multicast`` the channel may name a port as ``GROUP:PORT`` (IPv4, e.g.
+    ``239.74.163.2:43156``). Why: python-can binds every such bus to its port (default 43113)
+    on all addresses, and Linux delivers every group joined anywhere on the machine at that port
+    to it: two simulations on one machine stay apart only on different ports.
+    """
+    kwargs: dict = {"interface": interface, "channel": channel}
+    m = re.fullmatch(r"(\d{1,3}(?:\.\d{1,3}){3}):(\d+)", channel.strip())
+    if interface == "udp_multicast" and m:
+        port = int(m.group(2))
+        if not 1 <= port <= 65535:
+            raise ValueError(f"channel {channel!r}: port {port} is not in 1..65535")
+        kwargs.update(channel=m.group(1), port=port)
+    if bitrate:
+        kwargs["bitrate"] = bitrate
+    return kwargs
+
+
 def open_bus(
     *,
     interface: str,
@@ -119,14 +141,13 @@ def open_bus(
 ) -> can.BusABC | ReplayBus:
     """A python-can bus from configuration, or a :class:`ReplayBus` when ``replay_file`` is set.
 
-    ``bitrate`` 0 leaves the interface's own setting. Raises whatever python-can raises for a
-    bus it cannot open (``can.CanError``, ``OSError``, ``ImportError``, ``ValueError``...).
+    ``bitrate`` 0 leaves the interface's own setting; channels as :func:`bus_kwargs` reads
+    them. Raises whatever python-can raises for a bus it cannot open (``can.CanError``,
+    ``OSError``, ``ImportError``, ``ValueError``...).
     """
     if replay_file:
         return ReplayBus(replay_file, replay_max_gap_s, can_filters)
-    kwargs: dict = {"interface": interface, "channel": channel}
-    if bitrate:
-        kwargs["bitrate"] = bitrate
+    kwargs = bus_kwargs(interface, channel, bitrate)
     if can_filters:
         kwargs["can_filters"] = list(can_filters)
     return can.Bus(**kwargs)
@@ -508,6 +529,10 @@ class SkinStream:
         return done, missing
 
     # -- health ---------------------------------------------------------------------------
+    def publications(self) -> list[tuple[str, int, int]]:
+        """Per patch: (name, readings published, of them with a module stale or silent)."""
+        return [(st.layout.name, st.published, st.stale_publications) for st in self._patches]
+
     def diagnostics(self, now: float, window: bool = True) -> list[DiagStatus]:
         """Bus-wide frame counters, then one status per patch and per module.
 

@@ -31,6 +31,7 @@ import numpy as np
 from rclpy.node import Node
 
 from tactile_contact.canbus.codec import CLASS_ANALOG_SENSOR, CLASS_SKIN
+from tactile_contact.canbus.stream import bus_kwargs
 from tactile_contact.inverse.summary import Contact
 from tactile_contact.model.indenters import FlatPunch, HertzSphere
 from tactile_contact.model.layout import PatchLayout, load_layout
@@ -158,9 +159,7 @@ class SkinSimulatorNode(Node):
         self.indentation = (
             None if ind is None else _Looped(ind, p["cycle_s"], p["loop"], p["start_delay_s"])
         )
-        kwargs_bus: dict[str, Any] = {"interface": p["interface"], "channel": p["channel"]}
-        if p["bitrate"]:
-            kwargs_bus["bitrate"] = p["bitrate"]
+        kwargs_bus = bus_kwargs(p["interface"], p["channel"], p["bitrate"])  # (GROUP:PORT too)
         if p["interface"] == "virtual":
             kwargs_bus["preserve_timestamps"] = True  # receivers see the stamps of the truth
         self._bus = can.Bus(**kwargs_bus)
