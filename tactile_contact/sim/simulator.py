@@ -376,6 +376,11 @@ def write_log(path: str | Path, periods: Iterable[SimPeriod]) -> list[PeriodTrut
     return truths
 
 
+#: Kernel entries (channels × fine cells) above which the real-time simulator cuts each
+#: taxel's kernel at a reach instead of keeping all of it (about 40 MB of float64).
+REALTIME_DENSE_ENTRIES = 5_000_000
+
+
 def simulator_for_patch(
     patch: PatchLayout,
     *,
@@ -395,13 +400,30 @@ def simulator_for_patch(
     deformed plate. ``realtime`` uses :class:`forward.PatchForwardModel` instead: electrode
     averaged, kernel precomputed once over a fixed grid (seconds at start, then about 2 ms per
     period; within about 3 % of the reference model), for simulators that must keep pace with
-    the bus. Other keyword arguments go to :class:`SkinSimulator`.
+    the bus; on a patch whose fixed-grid kernel would exceed REALTIME_DENSE_ENTRIES (an iCub
+    forearm: 288 channels × 95 000 cells) each taxel's kernel is cut at 20 mm instead
+    (:class:`tactile_contact.sim.local_forward.LocalForwardModel`, within 0.03 count of the
+    dense one). Other keyword arguments go to :class:`SkinSimulator`.
     """
     from tactile_contact.model.forward import ForwardModel, PatchForwardModel
+    from tactile_contact.model.grids import Grid
 
     el, se = patch.elastomer, patch.sensor
     model: CompressionModel
-    if realtime:
+    covering = Grid.covering(patch.channel_xy(), fine_cell, 6.0e-3)
+    entries = len(patch.channel_xy()) * covering.shape[0] * covering.shape[1]
+    if realtime and entries > REALTIME_DENSE_ENTRIES:
+        from tactile_contact.sim.local_forward import LocalForwardModel
+
+        model = LocalForwardModel(
+            patch.channel_xy(),
+            el.thickness,
+            el.young,
+            el.poisson,
+            fine_cell=fine_cell,
+            taxel_radius=se.taxel_radius,
+        )
+    elif realtime:
         model = PatchForwardModel(
             patch.channel_xy(),
             el.thickness,
