@@ -3,8 +3,12 @@
 A thin lifecycle adapter over the core library (docs/driver.md has the full description):
 
 - configure: load the patch layout, build the period assembler and per-patch baselines, open
-  the bus (python-can from parameters, or a candump log replayed at recorded pace); a bus that
-  cannot be opened is logged and reported as FAILURE.
+  the bus (python-can from parameters, or a candump log replayed at recorded pace). A bus that
+  cannot be opened now (no such interface yet, an adapter not plugged in) is retried with
+  exponential backoff from the receive thread and reported in /diagnostics (ERROR, with the
+  reason) and in the log once per change of reason; one that can never open (an unknown
+  python-can interface, its backend missing, a replay file that cannot be read) is logged and
+  reported as FAILURE.
 - activate: optionally send the board configuration, start the receive thread; publish
   ``<patch>/taxels`` (TaxelArray, sensor-data QoS) whenever every live module of a patch has
   a new reading or ``max_wait_ms`` has passed (modules without a new reading flagged STALE).
@@ -75,6 +79,15 @@ def _interface_gone(exc: BaseException) -> str:
     if errno_ in (errno.ENODEV, errno.ENXIO):
         return "removed"
     return ""
+
+
+def _may_come_up(exc: BaseException, replay_file: str) -> bool:
+    """Whether a bus that failed to open with ``exc`` is worth retrying: a live interface that
+    is not there yet (no such device, address family, adapter unplugged); not an unknown
+    python-can interface, a backend that cannot import, a bad channel or a replay file."""
+    if replay_file:
+        return False
+    return not isinstance(exc, (can.CanInterfaceNotImplementedError, ImportError, ValueError))
 
 
 def default_layout_path() -> Path:
@@ -186,6 +199,9 @@ class SkinDriver(LifecycleNode):
         self._policy: BusErrorPolicy | None = None
         self._backoff: Backoff | None = None
         self._next_attempt = 0.0  # monotonic time of the next reopen attempt [s]
+        self._bus_problem = ""  # why the bus is closed ("" while open)
+        self._bus_opened = False  # the bus was open at least once
+        self._config_sent = False
         self._pubs: dict[str, Publisher] = {}
         self._diag_pub: Publisher | None = None
         self._diag_timer: Timer | None = None
@@ -266,10 +282,21 @@ class SkinDriver(LifecycleNode):
         )
         self._policy = BusErrorPolicy(p["reconnect_after_errors"])
         self._backoff = Backoff(p["reconnect_interval_s"], p["reconnect_max_interval_s"])
-        bus = self._open_bus()
-        if bus is None:
-            return FAILURE
-        self._bus = bus
+        self._config_sent = False
+        try:
+            self._bus = open_bus(**self._bus_config())
+            self._bus_opened, self._bus_problem = True, ""
+        except Exception as exc:  # python-can raises many types for a bus it cannot open
+            text = f"cannot open CAN bus {self._bus_name()}: {type(exc).__name__}: {exc}"
+            if not _may_come_up(exc, p["replay_file"]):
+                self.get_logger().error(text)
+                return FAILURE
+            self._bus_problem = text
+            self._next_attempt = time.monotonic() + self._backoff.wait_s
+            self.get_logger().error(
+                f"{text}; retrying, first in {self._backoff.wait_s:g} s, then up to every "
+                f"{p['reconnect_max_interval_s']:g} s (state in /diagnostics)"
+            )
         for pl in patches:
             self._pubs[pl.name] = self.create_lifecycle_publisher(
                 TaxelArray, f"{pl.name}/taxels", cm.SENSOR_QOS
@@ -289,26 +316,64 @@ class SkinDriver(LifecycleNode):
             return f"replay of {p['replay_file']}"
         return f"{p['interface']}:{p['channel']}"
 
-    def _open_bus(self, reconnecting: bool = False) -> can.BusABC | Any | None:
-        """The bus, or None after logging why not (throttled while reconnecting)."""
+    def _bus_config(self) -> dict[str, Any]:
+        """Keyword arguments of :func:`open_bus` from the parameters."""
         p = self._params
         assert self._stream is not None
+        return {
+            "interface": p["interface"],
+            "channel": p["channel"],
+            "bitrate": p["bitrate"],
+            "replay_file": p["replay_file"],
+            "replay_max_gap_s": p["replay_max_gap_s"],
+            "can_filters": self._stream.can_filters() if p["bus_filter"] else None,
+        }
+
+    def _open_bus(self) -> can.BusABC | Any | None:
+        """The bus reopened, or None; a new reason for failing is logged (once per reason)."""
         try:
-            return open_bus(
-                interface=p["interface"],
-                channel=p["channel"],
-                bitrate=p["bitrate"],
-                replay_file=p["replay_file"],
-                replay_max_gap_s=p["replay_max_gap_s"],
-                can_filters=self._stream.can_filters() if p["bus_filter"] else None,
-            )
+            return open_bus(**self._bus_config())
         except Exception as exc:  # python-can raises many types for a bus it cannot open
             text = f"cannot open CAN bus {self._bus_name()}: {type(exc).__name__}: {exc}"
-            if reconnecting:
-                self.get_logger().warning(text, throttle_duration_sec=WARN_THROTTLE_S)
-            else:
-                self.get_logger().error(text)
+            if text != self._bus_problem:
+                self.get_logger().error(f"{text}; retrying (state in /diagnostics)")
+            self._bus_problem = text
             return None
+
+    @property
+    def bus_opened(self) -> bool:
+        """Whether the bus was open at least once since configure."""
+        return self._bus_opened
+
+    def published(self) -> dict[str, int]:
+        """Taxel messages published per patch since configure."""
+        if self._stream is None:
+            return {}
+        with self._lock:
+            return {name: n for name, n, _ in self._stream.publications()}
+
+    def bus_problem(self) -> str:
+        """Why the bus is closed now ("" while it is open)."""
+        return self._bus_problem if self._bus is None else ""
+
+    def summary(self) -> list[str]:
+        """Lines for the end of a run: the bus (frames, rejected) and each patch's messages."""
+        if self._stream is None:
+            return [f"bus {self._bus_name() if self._params else '?'}: not configured"]
+        with self._lock:
+            c = self._stream.assembler.counters
+            frames, rejected = c.frames, c.rejected
+            states = self._stream.publications()
+        head = f"bus {self._bus_name()}: {frames} CAN frames, {rejected} rejected"
+        if not self._bus_opened:
+            head += f"; never opened ({self._bus_problem})"
+        elif self._bus is None:
+            head += f"; closed now ({self._bus_problem})"
+        return [head] + [
+            f"{name}: {n} taxel messages published"
+            + (f" ({stale} with silent or late modules)" if stale else "")
+            for name, n, stale in states
+        ]
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         # Publishers first: the receive thread may publish its first message at once.
@@ -316,7 +381,7 @@ class SkinDriver(LifecycleNode):
         if result != SUCCESS:
             return result
         try:
-            if self._params["send_config"]:
+            if self._params["send_config"] and self._bus is not None:
                 self._send_config()
             self._drain()
             self._stop.clear()
@@ -394,6 +459,7 @@ class SkinDriver(LifecycleNode):
         """SET_BRD_CFG, SET_TRIANG_CFG (all triangles of each board) then SET_TXMODE start."""
         p, stream = self._params, self._stream
         assert stream is not None
+        self._config_sent = True
         for board, (first, last, shift, no_load) in sorted(stream.board_ranges().items()):
             for cmd in (
                 codec.set_board_config(board, p["skin_type"], p["period_ms"], no_load),
@@ -519,6 +585,7 @@ class SkinDriver(LifecycleNode):
         bus, self._bus = self._bus, None
         wait = self._backoff.wait_s
         self._next_attempt = time.monotonic() + wait
+        self._bus_problem = why
         self.get_logger().warning(f"{why}: closing the bus, reopening in {wait:.2f} s")
         if bus is not None:
             error = close_bus(bus)
@@ -535,12 +602,14 @@ class SkinDriver(LifecycleNode):
             return
         with self._lock:
             self._policy.reconnect_attempts += 1
-        bus = self._open_bus(reconnecting=True)
+        bus = self._open_bus()
         if bus is None:
             self._backoff.failed()
             self._next_attempt = time.monotonic() + self._backoff.wait_s
             return
         self._bus = bus
+        first = not self._bus_opened
+        self._bus_opened, self._bus_problem = True, ""
         with self._lock:
             self._policy.reconnects += 1
             if self._stream is not None:
@@ -550,7 +619,11 @@ class SkinDriver(LifecycleNode):
                     controller.bus_off_since = time.monotonic()
                 else:
                     self._backoff.reset()
-        self.get_logger().info(f"reconnected to {self._bus_name()}")
+        self.get_logger().info(
+            f"{'opened' if first else 'reconnected to'} CAN bus {self._bus_name()}"
+        )
+        if first and self._params["send_config"] and not self._config_sent:
+            self._send_config()
         self._publish_diagnostics(window=False)
 
     def _publish(self, f: PatchFrame) -> None:
@@ -616,6 +689,8 @@ class SkinDriver(LifecycleNode):
                 wait = max(0.0, self._next_attempt - time.monotonic())
                 tries = bus_values["reconnect_attempts"]
                 message = f"closed, reopening in {wait:.1f} s ({tries} attempts so far)"
+                if self._bus_problem:
+                    message += f": {self._bus_problem}"
             quiet = time.monotonic() - self._last_frame if self._last_frame >= 0 else -1.0
             timeout = self._params.get("module_timeout_ms", 500.0) * 1e-3
             if bus_open and not finished and quiet > timeout:
@@ -630,6 +705,8 @@ class SkinDriver(LifecycleNode):
                 **bus_values,
                 **controller,
                 "next_reconnect_wait_s": self._backoff.wait_s if self._backoff else 0.0,
+                "bus_problem": self.bus_problem(),
+                "bus_ever_open": self._bus_opened,
                 "seconds_since_last_frame": quiet,
             }
             if bus_values["bus_errors_in_window"]:
@@ -647,6 +724,10 @@ class SkinDriver(LifecycleNode):
             ]
             pub.publish(out)
             self._diag_last = time.monotonic()
+
+    def state_label(self) -> str:
+        """The lifecycle state ("unconfigured", "inactive", "active", ...)."""
+        return self._state_label()
 
     def _state_label(self) -> str:
         # rclpy's LifecycleNode offers the state only through its ~/get_state service (a call
