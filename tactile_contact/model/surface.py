@@ -136,6 +136,20 @@ class Surface:
             local[:, 0, 2], local[:, 2, 2] = s, c  # ẑ: the normal
         return np.einsum("ij,njk->nik", self.rotation, local)
 
+    @classmethod
+    def from_dict(cls, d: dict | None) -> Surface | None:
+        """The surface of :meth:`to_dict`'s plain data (as stored in a bundle manifest's
+        layout); None for None. Raises ValueError on bad values."""
+        if d is None:
+            return None
+        return cls(
+            str(d["frame_id"]),
+            str(d["shape"]),
+            tuple(float(v) for v in d["origin"]),  # type: ignore[arg-type]
+            tuple(float(v) for v in d["orientation"]),  # type: ignore[arg-type]
+            float(d["radius"]) if d.get("radius") is not None else None,
+        )
+
     def to_dict(self) -> dict:
         """Plain data as written in a layout file."""
         d: dict = {
