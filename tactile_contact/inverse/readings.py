@@ -31,6 +31,11 @@ class Frame:
         quantised: the readings are whole 8-bit counts: report the posterior over the
             quantisation valley, not the least-squares point.
         scale_free: precise readings of unknown noise: detection adds the scale-free test.
+        frames: the readings' noise is sigma/√frames: the mean of that many frames of a held
+            scene (:mod:`tactile_contact.inverse.temporal`; fewer, not a whole number, where
+            the frames scatter more than sigma says). Detection's statistics and the fit's
+            weights are those of the mean; ``sigma`` stays one frame's (the detector's filters
+            are built for it).
     """
 
     delta: NDArray[np.float64]
@@ -38,6 +43,7 @@ class Frame:
     sigma: NDArray[np.float64]
     quantised: bool = True
     scale_free: bool = False
+    frames: float = 1.0
 
     @property
     def used(self) -> int:

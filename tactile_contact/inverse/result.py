@@ -54,6 +54,8 @@ class ContactResult:
             else the field as one contact; empty without contact.
         taxels_used: valid taxels the solve used (those excluded: ``valid`` False, NaN, out
             of range).
+        frames: frames of a held scene this result fuses (1: this frame alone; a
+            reconstructor made with ``fuse=True``, :mod:`tactile_contact.inverse.temporal`).
     """
 
     traction: NDArray[np.float64] | None
@@ -72,6 +74,7 @@ class ContactResult:
     refined: bool = False
     contacts: tuple[Contact, ...] = ()
     taxels_used: int = 0
+    frames: int = 1
 
 
 class Request(NamedTuple):

@@ -1,0 +1,103 @@
+"""Compiled per-frame step of :class:`tactile_contact.inverse.temporal.FrameFusion` (numba,
+cached on disk after the first call).
+
+One pass over a frame's K readings: standardised residuals against the window's mean, the
+three change statistics, the robust noise scale, and — when nothing changed — the frame added
+to the window's ring buffer. A held or idle patch-frame costs this call and little Python
+around it. Nothing here validates its arguments: :mod:`tactile_contact.inverse.temporal` does.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+_JIT = {"cache": True, "nogil": True}
+
+#: Median of χ²₁ (a squared standard normal): the robust scale is median(u²) over this.
+CHI2_1_MEDIAN = 0.45493642311957305
+
+# Slots of the state vector shared with temporal.FrameFusion.
+N, HEAD, SCALE2, SCALE_FLOOR, SCALE_SEEN, SCALE_MEMORY = range(6)
+STATE_SIZE = 6
+
+
+@numba.njit(**_JIT)
+def held_step(
+    d, ok, sigma, buf, total, state, nbr, local_limit, q, limits
+):  # pragma: no cover - compiled
+    """Test one frame against the held window and add it when nothing changed.
+
+    Args:
+        d: (K,) readings [m] (0 where not ``ok``).
+        ok: (K,) taxels of the window (the frame's valid taxels are the same).
+        sigma: (K,) noise of one frame [m].
+        buf: (H, K) ring buffer of the window's frames; total: (K,) their sum.
+        state: float64 vector (slots above): frames in the window, next ring row, noise scale²
+            (its floor, frames it learnt from, its memory).
+        nbr: (K, W) each taxel's neighbourhood (indices; K pads); local_limit: (K,) χ²
+            limits of the neighbourhood sums.
+        q: (K, m) orthonormal whitened directions of the last result's parameters (m may be 0).
+        limits: [χ² limit of the whole frame, χ² limit of the projection on q].
+
+    Returns:
+        0: unchanged, the frame added; 1: the whole frame changed; 2: a neighbourhood changed;
+        3: the projection on the result's parameters changed (nothing added for 1–3).
+    """
+    k = d.shape[0]
+    n = state[N]
+    spread = math.sqrt(1.0 + 1.0 / n)
+    u = np.zeros(k + 1)
+    u2 = np.empty(k)
+    m = 0
+    whole = 0.0
+    for i in range(k):
+        if ok[i]:
+            r = (d[i] - total[i] / n) / (sigma[i] * spread)
+            u[i] = r
+            u2[m] = r * r
+            whole += r * r
+            m += 1
+    # The noise scale learns from every frame, robustly (a moving contact changes a few
+    # taxels; the median stays that of the others), faster while it has seen few frames.
+    seen = state[SCALE_SEEN] + 1.0
+    state[SCALE_SEEN] = seen
+    rate = max(1.0 / seen, 1.0 / state[SCALE_MEMORY])
+    if m > 0:
+        robust = np.median(u2[:m]) / CHI2_1_MEDIAN
+        state[SCALE2] += rate * (robust - state[SCALE2])
+    scale2 = max(state[SCALE2], state[SCALE_FLOOR])
+    if whole > limits[0] * scale2:
+        return 1
+    for j in range(k):
+        s = 0.0
+        for w in range(nbr.shape[1]):
+            v = u[nbr[j, w]]
+            s += v * v
+        if s > local_limit[j] * scale2:
+            return 2
+    if q.shape[1] > 0:
+        proj = 0.0
+        for c in range(q.shape[1]):
+            g = 0.0
+            for i in range(k):
+                g += q[i, c] * u[i]
+            proj += g * g
+        if proj > limits[1] * scale2:
+            return 3
+    h = buf.shape[0]
+    row = int(state[HEAD])
+    full = n >= h
+    for i in range(k):
+        x = d[i] if ok[i] else 0.0
+        if full:
+            total[i] += x - buf[row, i]
+        else:
+            total[i] += x
+        buf[row, i] = x
+    if not full:
+        state[N] = n + 1.0
+    state[HEAD] = float((row + 1) % h)
+    return 0

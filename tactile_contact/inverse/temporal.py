@@ -1,0 +1,400 @@
+"""Frames of a held scene fused over time (issues 25 and 26).
+
+A press lasts many frames, and one 8-bit frame is near its information limit (one count is
+≈ 10 µm of compression; a 1 N press's force information sits in a ring of readings of a count
+or two). While the scene does not change, the mean of its frames carries the same contact with
+1/√n of a frame's noise: with 0.5-count converter noise the rounding is dithered and averages
+out too. :class:`FrameFusion` keeps that mean for one patch and solves it now and then; every
+other frame republishes the last result without solving, so a held grasp or an idle patch
+costs one compiled pass over the readings (:func:`tactile_contact.inverse._temporal_kernels.
+held_step`).
+
+Per frame, against the mean of the window (the frames since the scene last changed, at most
+``window``), with each taxel's frame noise σ_i (scaled by a robust estimate of how far the
+readings' scatter exceeds it):
+
+- the whole frame: Σ u_i² (u_i = (δ_i − mean_i)/(σ_i·√(1 + 1/n))) against its χ² limit;
+- each taxel's neighbourhood (taxels within ``reach``): a small contact that appears, moves or
+  leaves changes a few taxels, which the whole frame's 72 degrees of freedom would dilute;
+- the directions in which the last result's contacts would change (force, centre, size of
+  each round contact: its whitened Jacobian): a slow slide or a force that creeps.
+
+Each at a false-change rate ``alpha`` per frame. A change ends the window: the frame is solved
+on its own (what the reconstructor alone gives) and a new window starts from it. Otherwise the
+frame joins the window, and the window is solved again when its length reaches 2, 3, 4, 6, 8,
+… 50 frames and then every ``resolve_every`` frames; each such solve looks back over the
+window's frames for a step along the new result's directions (a change too small for one frame,
+say a light press that began while the patch read nothing) and drops the frames before it. An
+idle patch (the last result has no contact) solves the mean of its last ``idle_window`` frames
+every ``idle_every`` frames instead: a touch too light for one frame is found with √n of its
+single-frame statistic, at the reconstructor's stated false-contact rate per solve.
+
+Costs and limits, measured in bench/bench_time.py and bench/bench_held.py (docs/bench/time.md):
+a moving contact is averaged over the frames its motion stays within noise, so the fused
+estimate trails it (lag in frames printed there); a change smaller than the noise of the
+window is averaged in, not noticed.
+
+All readings are compressions δ [m] of the bundle's taxels; no ROS import.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import chi2
+
+from tactile_contact.inverse import _temporal_kernels as kern
+from tactile_contact.inverse.readings import Frame
+from tactile_contact.inverse.round_contact import FAMILIES, RoundFit, RoundTables
+
+if TYPE_CHECKING:
+    from tactile_contact.inverse.reconstruction import Reconstructor
+
+#: Frames in the window at most (1 s at 50 Hz): the mean's noise is a frame's over √50.
+WINDOW = 50
+#: The window is solved again when it reaches these lengths, then every RESOLVE_EVERY frames.
+RESOLVE_AT = frozenset((2, 3, 4, 6, 8, 10, 12, 16, 20, 25, 32, 40, 50))
+RESOLVE_EVERY = 25
+#: An idle patch solves the mean of its last IDLE_WINDOW frames every IDLE_EVERY frames.
+IDLE_EVERY = 4
+IDLE_WINDOW = 8
+#: False-change rate of each test per frame (a false change costs one solve and restarts the
+#: window).
+ALPHA = 1e-3
+#: Taxels within this distance [m] of a taxel form its neighbourhood (itself and the ring of
+#: nearest taxels at the 5.5 mm pitch).
+REACH = 6.5e-3
+#: Frames the noise scale remembers.
+SCALE_MEMORY = 50.0
+#: Steps of the round contacts' derivatives: centre [m] (within one 0.1 mm table step, where
+#: the tables are linear), radius (relative).
+STEP_XY = 1.0e-5
+STEP_RADIUS = 0.02
+
+
+#: solve(δ (K,) [m], valid (K,), σ (K,) [m] as passed to :meth:`FrameFusion.step`, frames
+#: averaged n, noise scale² s² (one frame's noise is s·σ), want traction, want deflection,
+#: context) → the reconstructor's result for the mean of n frames, whose noise is
+#: s·σ/√n (n = 1: the frame alone, as the reconstructor solves it; ``context``: what the
+#: caller passed to :meth:`FrameFusion.step`).
+Solve = Callable[[NDArray, NDArray, NDArray, int, float, bool, bool, object], object]
+#: jacobian(result, valid) → (K, m) derivatives [m per unit] of the result's predicted
+#: readings in its parameters, or None (no contact, or no parametric contact).
+Jacobian = Callable[[object, NDArray], NDArray | None]
+
+
+@dataclass
+class FusionCounts:
+    """What the frames cost: ``solved`` on their own (a change), ``fused`` (the window solved),
+    ``held`` (the last result republished), and the changes by test."""
+
+    solved: int = 0
+    fused: int = 0
+    held: int = 0
+    changes: dict[str, int] = field(default_factory=dict)
+
+
+class FrameFusion:
+    """Fuses one patch's frames while its scene holds (see the module docstring).
+
+    Args:
+        taxel_xy: (K, 2) taxel centres [m].
+        solve: the reconstructor's solve of a mean of frames (:data:`Solve`).
+        jacobian: the result's parameter directions (:data:`Jacobian`).
+        window, resolve_every, idle_every, idle_window, alpha, reach: as the module constants.
+    """
+
+    def __init__(
+        self,
+        taxel_xy: NDArray,
+        solve: Solve,
+        jacobian: Jacobian,
+        *,
+        window: int = WINDOW,
+        resolve_every: int = RESOLVE_EVERY,
+        idle_every: int = IDLE_EVERY,
+        idle_window: int = IDLE_WINDOW,
+        alpha: float = ALPHA,
+        reach: float = REACH,
+    ) -> None:
+        xy = np.asarray(taxel_xy, dtype=np.float64)
+        k = len(xy)
+        if window < 2 or resolve_every < 1 or idle_every < 1 or idle_window < 1:
+            raise ValueError("window must be >= 2 and the cadences >= 1 frame")
+        if not 0.0 < alpha < 1.0:
+            raise ValueError(f"alpha must be within (0, 1), got {alpha!r}")
+        self._solve, self._jacobian = solve, jacobian
+        self.window, self.resolve_every = int(window), int(resolve_every)
+        self.idle_every, self.idle_window, self.alpha = int(idle_every), int(idle_window), alpha
+        dist = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
+        groups = [np.flatnonzero(row <= reach) for row in dist]
+        width = max(len(g) for g in groups)
+        self._nbr = np.array([np.pad(g, (0, width - len(g)), constant_values=k) for g in groups])
+        # Bonferroni over the K neighbourhoods: the local tests together keep the rate alpha.
+        self._local_limit = np.array([chi2.isf(alpha / k, len(g)) for g in groups])
+        self._buf = np.zeros((self.window, k))
+        self._total = np.zeros(k)
+        self._state = np.zeros(kern.STATE_SIZE)
+        self._state[kern.SCALE2] = 1.0
+        self._state[kern.SCALE_MEMORY] = SCALE_MEMORY
+        self._ok: NDArray[np.bool_] | None = None
+        self._limits = np.zeros(2)
+        self._q = np.zeros((k, 0))
+        self._since = 0
+        self._context: object = None
+        self.result: object = None
+        #: Frames averaged into ``result`` (1: solved on its own).
+        self.result_frames = 0
+        #: What the last frame did: "solved", "fused" or "held".
+        self.last = ""
+        self.counts = FusionCounts()
+
+    @property
+    def frames(self) -> int:
+        """Frames in the window now."""
+        return int(self._state[kern.N])
+
+    @property
+    def noise_scale(self) -> float:
+        """How far the frames' scatter exceeds the noise passed in (robust estimate, ≥ its
+        floor)."""
+        return math.sqrt(max(self._state[kern.SCALE2], self._state[kern.SCALE_FLOOR]))
+
+    def reset(self) -> None:
+        """Forget the window and the result (the next frame is solved on its own)."""
+        self._state[kern.N] = 0.0
+        self._ok = None
+        self.result = None
+
+    def step(
+        self,
+        delta: NDArray,
+        ok: NDArray,
+        sigma: NDArray,
+        *,
+        known_noise: bool,
+        want_traction: bool = True,
+        want_deflection: bool = True,
+        context: object = None,
+    ) -> object:
+        """The result for this frame: readings ``delta`` (K,) [m] (0 where not ``ok``), valid
+        taxels ``ok`` (K,), each taxel's noise of one frame ``sigma`` (K,) [m].
+        ``known_noise``: sigma is the readings' noise (passed in, or the rounding of quantised
+        readings): the noise scale does not go below 1; else it learns either way.
+        ``context`` goes to the solve callback."""
+        self._context = context
+        self._state[kern.SCALE_FLOOR] = 1.0 if known_noise else 1e-6
+        if self._ok is None or self.result is None or not np.array_equal(ok, self._ok):
+            return self._fresh(delta, ok, sigma, want_traction, want_deflection, "valid")
+        sigma = np.ascontiguousarray(sigma, dtype=np.float64)
+        changed = kern.held_step(
+            delta,
+            self._ok,
+            sigma,
+            self._buf,
+            self._total,
+            self._state,
+            self._nbr,
+            self._local_limit,
+            self._q,
+            self._limits,
+        )
+        if changed:
+            kind = ("frame", "neighbourhood", "parameters")[changed - 1]
+            return self._fresh(delta, ok, sigma, want_traction, want_deflection, kind)
+        self._since += 1
+        res = self.result
+        n = self.frames
+        missing = (want_traction and res.traction is None) or (  # type: ignore[attr-defined]
+            want_deflection and res.deflection is None  # type: ignore[attr-defined]
+        )
+        if res.in_contact or missing:  # type: ignore[attr-defined]
+            due = n in RESOLVE_AT if n < self.window else self._since >= self.resolve_every
+            if due or missing:
+                return self._resolve(sigma, want_traction, want_deflection)
+        elif self._since >= self.idle_every:
+            self._since = 0
+            w = min(n, self.idle_window)
+            found = self._call(self._mean(w), sigma, w, False, False)
+            if found.in_contact:  # type: ignore[attr-defined]
+                self._adopt(found, sigma)
+                return self._resolve(sigma, want_traction, want_deflection)
+        self.counts.held += 1
+        self.last = "held"
+        return res
+
+    def step_frame(self, frame: Frame, want_traction: bool, want_deflection: bool) -> Any:
+        """:meth:`step` of a reconstructor's :class:`~tactile_contact.inverse.readings.Frame`
+        (the context its solve gets back). Quantised readings and noise levels passed in are
+        the readings' noise (the noise scale stays ≥ 1); precise readings of unknown noise
+        teach it."""
+        return self.step(
+            frame.delta,
+            frame.ok,
+            frame.sigma,
+            known_noise=frame.quantised,
+            want_traction=want_traction,
+            want_deflection=want_deflection,
+            context=frame,
+        )
+
+    # ------------------------------------------------------------------------------------
+
+    def _call(self, d: NDArray, sigma: NDArray, n: int, want_t: bool, want_d: bool) -> object:
+        scale2 = self.noise_scale**2 if n > 1 else 1.0
+        return self._solve(d, self._ok, sigma, n, scale2, want_t, want_d, self._context)
+
+    def _scaled(self, sigma: NDArray) -> NDArray[np.float64]:
+        return sigma * self.noise_scale
+
+    def _rows(self, n: int) -> NDArray[np.intp]:
+        """Ring rows of the newest n frames, oldest first."""
+        head = int(self._state[kern.HEAD])
+        return (head - n + np.arange(n)) % self.window
+
+    def _mean(self, n: int | None = None) -> NDArray[np.float64]:
+        if n is None:
+            return self._total / self.frames
+        return self._buf[self._rows(n)].mean(axis=0)
+
+    def _fresh(
+        self, delta: NDArray, ok: NDArray, sigma: NDArray, want_t: bool, want_d: bool, why: str
+    ) -> object:
+        """A change: the frame alone, solved as the reconstructor solves it; a new window."""
+        self._ok = np.array(ok, dtype=bool)
+        k = int(self._ok.sum())
+        self._limits[0] = _limit(self.alpha, k)
+        x = np.where(self._ok, delta, 0.0)
+        self._buf[0] = x
+        self._total[:] = x
+        self._state[kern.N], self._state[kern.HEAD] = 1.0, 1.0 % self.window
+        self.result = self._call(x, sigma, 1, want_t, want_d)
+        self.result_frames = 1
+        self._since = 0
+        self._directions(sigma)
+        self.counts.solved += 1
+        self.counts.changes[why] = self.counts.changes.get(why, 0) + 1
+        self.last = "solved"
+        return self.result
+
+    def _adopt(self, result: object, sigma: NDArray) -> None:
+        """A contact found in the window: its directions, then the frames before its start
+        (a step along them) dropped."""
+        self.result = result
+        self._directions(sigma)
+        self._trim_before_change(sigma)
+
+    def _resolve(self, sigma: NDArray, want_t: bool, want_d: bool) -> object:
+        """The window's mean solved; if the window holds a step along the new result's
+        directions, the frames before it are dropped and the rest solved."""
+        rows = self._rows(self.frames)
+        self._total[:] = self._buf[rows].sum(axis=0)  # (no drift from adding and removing)
+        self.result = self._call(self._mean(), sigma, self.frames, want_t, want_d)
+        self._directions(sigma)
+        if self._trim_before_change(sigma):
+            self.result = self._call(self._mean(), sigma, self.frames, want_t, want_d)
+            self._directions(sigma)
+        self.result_frames = self.frames
+        self._since = 0
+        self.counts.fused += 1
+        self.last = "fused"
+        return self.result
+
+    def _directions(self, sigma: NDArray) -> None:
+        """The whitened, orthonormal directions of the result's parameters (self._q)."""
+        k = len(self._total)
+        jac = self._jacobian(self.result, self._ok)
+        if jac is None or jac.shape[1] == 0:
+            self._q = np.zeros((k, 0))
+            return
+        ok = self._ok
+        a = jac[ok] / self._scaled(sigma)[ok, None]
+        q, r = np.linalg.qr(a)
+        d = np.abs(np.diag(r))
+        keep = d > 1e-9 * d.max() if d.size and d.max() > 0 else np.zeros(0, bool)
+        self._q = np.zeros((k, int(keep.sum())))
+        self._q[ok] = q[:, keep]
+        self._limits[1] = _limit(self.alpha, self._q.shape[1])
+
+    def _trim_before_change(self, sigma: NDArray) -> bool:
+        """Drop the frames before the most likely step of the window along self._q, if the
+        step is significant (two-segment χ² over every split, Bonferroni over the splits)."""
+        n, m = self.frames, self._q.shape[1]
+        if m == 0 or n < 3:
+            return False
+        rows = self._rows(n)
+        y = ((self._buf[rows] - self._total / n) / self._scaled(sigma)) @ self._q
+        run = np.cumsum(y, axis=0)
+        old = np.arange(1, n)[:, None]
+        before = run[:-1] / old
+        after = (run[-1] - run[:-1]) / (n - old)
+        stat = (old[:, 0] * (n - old[:, 0]) / n) * np.sum((before - after) ** 2, axis=1)
+        best = int(np.argmax(stat))
+        if stat[best] <= _limit(self.alpha / (n - 1), m):
+            return False
+        keep = n - (best + 1)
+        self._state[kern.N] = float(keep)
+        self._total[:] = self._buf[rows[-keep:]].sum(axis=0)
+        self.counts.changes["step"] = self.counts.changes.get("step", 0) + 1
+        return True
+
+
+def reconstructor_fusion(recon: Reconstructor) -> FrameFusion:
+    """The fusion of a reconstructor's frames (``Reconstructor(fuse=True)``): its solve of
+    a mean of n frames is the reconstructor's chain on a frame whose noise is that mean's
+    (``Frame.frames``; the result's ``frames`` is n), its directions the round contacts'
+    derivatives (none for a grid field)."""
+
+    def solve(delta, ok, sigma, n, scale2, want_t, want_d, frame):  # type: ignore[no-untyped-def]
+        if n == 1:
+            return recon._solve(frame, want_t, want_d)
+        mean = dataclasses.replace(frame, delta=delta, ok=ok, sigma=sigma, frames=n / scale2)
+        return dataclasses.replace(recon._solve(mean, want_t, want_d), frames=n)
+
+    def directions(result, ok):  # type: ignore[no-untyped-def]
+        if recon._round is None or not result.in_contact:
+            return None
+        return round_jacobian(recon._round, recon.taxel_xy, result.contacts)
+
+    return FrameFusion(recon.taxel_xy, solve, directions)
+
+
+def round_jacobian(
+    tables: RoundTables, taxel_xy: NDArray, contacts: tuple
+) -> NDArray[np.float64] | None:
+    """(K, 4·C) derivatives [m per unit] of the readings of round ``contacts``
+    (:class:`tactile_contact.inverse.summary.Contact`, profile ``punch`` or ``hertz``) in
+    each one's log force, centre x, y [m] and log radius; None if one is not a round contact
+    (a grid field) or there are none."""
+    if not contacts:
+        return None
+    cols = []
+    for c in contacts:
+        if c.profile not in FAMILIES:
+            return None
+        fam = FAMILIES.index(c.profile)
+        x, y = c.center
+
+        def reading(dx: float = 0.0, dy: float = 0.0, grow: float = 1.0, c=c, fam=fam, x=x, y=y):
+            fit = RoundFit(c.force, (x + dx, y + dy), fam, c.radius * grow, 0.0)
+            return tables.predict(fit, taxel_xy)
+
+        base = reading()
+        cols.append(base)  # ∂/∂ log F
+        cols.append((reading(dx=STEP_XY) - base) / STEP_XY)
+        cols.append((reading(dy=STEP_XY) - base) / STEP_XY)
+        cols.append((reading(grow=1.0 + STEP_RADIUS) - base) / math.log1p(STEP_RADIUS))
+    return np.column_stack(cols)
+
+
+@functools.lru_cache(maxsize=512)
+def _limit(alpha: float, dof: int) -> float:
+    """χ² value exceeded with probability ``alpha`` at ``dof`` degrees of freedom (≥ 1)."""
+    return float(chi2.isf(alpha, max(int(dof), 1)))

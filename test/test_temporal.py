@@ -1,0 +1,268 @@
+"""Frames of a held scene fused over time (Reconstructor(fuse=True), inverse/temporal.py).
+
+Presses come from the independent fine forward model (tactile_contact.model.forward: exact
+cell pressures on 0.25–0.5 mm cells, electrode quadrature), read as 8-bit whole counts with
+0.5-count Gaussian converter noise before rounding — not from the fit's own tables. The
+change statistics of the compiled step are checked against numpy written out here.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from scipy.stats import chi2
+
+from tactile_contact.inverse import _temporal_kernels as kern
+from tactile_contact.inverse.reconstruction import Reconstructor
+from tactile_contact.inverse.round_contact import FAMILIES, RoundFit
+from tactile_contact.inverse.temporal import FrameFusion, round_jacobian
+from tactile_contact.model.forward import ForwardModel
+from tactile_contact.model.indenters import FlatPunch, HertzSphere
+
+NOISE = 0.5  # converter noise [counts RMS]
+
+
+@pytest.fixture(scope="module")
+def setup(hexagon_bundle):
+    r = Reconstructor.from_bundle(hexagon_bundle[0])
+    p = r.params
+    truth = ForwardModel(
+        r.taxel_xy,
+        p["thickness"],
+        p["young"],
+        p["poisson"],
+        fine_cell=2.5e-4,
+        taxel_radius=p["taxel_radius"],
+    )
+    # One frame's noise [m]: the converter's and the rounding's (what the node's tracker
+    # learns from frames without contact).
+    count = float(r.readings.from_counts(np.array([1.0]))[0])
+    sigma = np.full(r.n_taxels, count * math.hypot(NOISE, 12**-0.5))
+    return hexagon_bundle[0], r, truth, sigma
+
+
+def counts(r, delta: np.ndarray, rng, n: int) -> np.ndarray:
+    """n frames of ΔC [F]: whole counts of ``delta`` [m] with 0.5-count noise before rounding."""
+    c = r.readings.counts(delta)
+    return np.rint(c + rng.normal(0.0, NOISE, (n, len(c)))) * r.readings.lsb
+
+
+PRESSES = [
+    (HertzSphere(6e-3), 1.0, 30, (0.0, 0.0)),
+    (HertzSphere(6e-3), 2.0, 41, (1.5e-3, 1.0e-3)),
+    (HertzSphere(3e-3), 1.5, 30, (2.75e-3, 0.0)),
+    (FlatPunch(1.5e-3), 1.0, 53, (0.0, 1.0e-3)),
+    (HertzSphere(3e-3), 3.0, 17, (1.0e-3, -1.0e-3)),
+]
+
+
+def test_a_held_press_is_measured_better_the_longer_it_is_held(setup):
+    """Ten frames of each press: the fused result after 10 frames errs far less than single
+    frames do (median over presses and noise draws), its ``frames`` says what it fuses, and
+    most frames are republished, not solved."""
+    bundle, alone, truth, sigma = setup
+    err1, err10 = [], []
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        for ind, force, taxel, off in PRESSES:
+            where = alone.taxel_xy[taxel] + np.asarray(off)
+            frames = counts(alone, truth.compression(ind, force, where), rng, 10)
+            fused = Reconstructor.from_bundle(bundle, follow=True, fuse=True)
+            for dc in frames:
+                res = fused.solve(dc, noise=sigma)
+                one = alone.solve(dc, noise=sigma)
+                err1.append(abs(one.total_force / force - 1) if one.in_contact else 1.0)
+            assert res.frames == 10 and fused.fusion.counts.solved == 1
+            err10.append(abs(res.total_force / force - 1) if res.in_contact else 1.0)
+    single, held = float(np.median(err1)), float(np.median(err10))
+    assert held < 0.6 * single and held < 0.10, (single, held)
+
+
+def test_the_first_frame_is_what_the_reconstructor_alone_gives(setup):
+    bundle, alone, truth, sigma = setup
+    fused = Reconstructor.from_bundle(bundle, fuse=True)
+    rng = np.random.default_rng(7)
+    (dc,) = counts(alone, truth.compression(HertzSphere(6e-3), 1.5, alone.taxel_xy[30]), rng, 1)
+    a, b = alone.solve(dc, noise=sigma), fused.solve(dc, noise=sigma)
+    assert b.frames == 1 and fused.fusion.last == "solved"
+    for name in ("total_force", "cop", "contact_area", "peak_pressure", "solver", "contacts"):
+        assert getattr(a, name) == getattr(b, name)
+    assert np.array_equal(a.traction, b.traction) and np.array_equal(a.deflection, b.deflection)
+
+
+def test_a_change_is_solved_at_once(setup):
+    """A press that moves 1 mm, one that doubles, a release and a valid mask that changes are
+    each solved on their own in the frame they happen."""
+    bundle, r0, truth, sigma = setup
+    r = Reconstructor.from_bundle(bundle, follow=True, fuse=True)
+    rng = np.random.default_rng(3)
+    ind, where = HertzSphere(6e-3), r0.taxel_xy[30]
+    scenes = [
+        (truth.compression(ind, 1.5, where), None),
+        (truth.compression(ind, 1.5, where + np.array([1e-3, 0.0])), None),
+        (truth.compression(ind, 3.0, where + np.array([1e-3, 0.0])), None),
+        (np.zeros(r.n_taxels), None),
+    ]
+    valid = np.ones(r.n_taxels, bool)
+    valid[5] = False
+    scenes.append((np.zeros(r.n_taxels), valid))
+    for d, ok in scenes:
+        frames = counts(r, d, rng, 6)
+        res = r.solve(frames[0], ok, noise=sigma)
+        assert r.fusion.last == "solved" and res.frames == 1
+        for dc in frames[1:]:
+            res = r.solve(dc, ok, noise=sigma)
+            assert r.fusion.last in ("held", "fused")
+    changes = r.fusion.counts.changes
+    assert sum(changes.values()) == 5 and changes["valid"] == 2  # the first frame, the mask
+    assert not res.in_contact
+
+
+def test_a_press_too_light_for_one_frame_is_found_when_held(setup):
+    """0.4 N between two taxels: no single frame of it reaches the detector's threshold; held
+    for 12 frames (after 20 without contact), the patch's idle check on the mean of its
+    last frames finds it, and the frames before it began are not averaged in."""
+    bundle, alone, truth, sigma = setup
+    r = Reconstructor.from_bundle(bundle, follow=True, fuse=True)
+    rng = np.random.default_rng(11)
+    where = (alone.taxel_xy[31] + alone.taxel_xy[35]) / 2
+    press = counts(alone, truth.compression(HertzSphere(3e-3), 0.4, where), rng, 12)
+    idle = counts(alone, np.zeros(alone.n_taxels), rng, 20)
+    assert not any(alone.solve(dc, noise=sigma).in_contact for dc in press)
+    for dc in idle:
+        assert not r.solve(dc, noise=sigma).in_contact
+    for dc in press:
+        res = r.solve(dc, noise=sigma)
+    assert res.in_contact and res.frames <= 12
+    assert abs(res.total_force / 0.4 - 1) < 0.5
+    assert np.hypot(*(np.asarray(res.cop) - where)) < 1.5e-3
+
+
+def test_noise_alone_gives_no_contact_and_almost_no_solve(setup):
+    """3000 frames of noise at the stated level: no contact, and the patch solves (the idle
+    check) every IDLE_EVERY frames only."""
+    bundle, alone, _, sigma = setup
+    r = Reconstructor.from_bundle(bundle, fuse=True)
+    frames = counts(alone, np.zeros(alone.n_taxels), np.random.default_rng(5), 3000)
+    assert not any(r.solve(dc, noise=sigma).in_contact for dc in frames)
+    c = r.fusion.counts
+    assert c.solved <= 10 and c.held >= 0.7 * len(frames)
+
+
+def test_unknown_noise_is_learnt_from_the_frames(setup):
+    """Float readings with no noise level: the fusion's noise scale learns the readings'
+    (0.2 µm, far below the sensor model's 4.3 µm), so a 0.2 mm step is a change."""
+    bundle, alone, truth, _ = setup
+    r = Reconstructor.from_bundle(bundle, follow=True, fuse=True)
+    rng = np.random.default_rng(2)
+    d = truth.compression(HertzSphere(6e-3), 1.5, alone.taxel_xy[30])
+    for _ in range(40):
+        r.solve_deflection(d + rng.normal(0.0, 0.2e-6, d.shape))
+    scale = r.fusion.noise_scale * float(np.median(alone.default_noise))
+    assert 0.15e-6 < scale < 0.3e-6
+    moved = truth.compression(HertzSphere(6e-3), 1.5, alone.taxel_xy[30] + [2e-4, 0.0])
+    r.solve_deflection(moved + rng.normal(0.0, 0.2e-6, d.shape))
+    assert r.fusion.last == "solved"
+
+
+# --- the compiled step against numpy -----------------------------------------------------
+
+
+def numpy_step(d, ok, sigma, frames, nbr, q, scale2):
+    """The change statistics written out: whole frame, neighbourhoods, projection."""
+    mean = np.mean(frames, axis=0)
+    u = np.where(ok, (d - mean) / (sigma * math.sqrt(1 + 1 / len(frames))), 0.0)
+    padded = np.append(u, 0.0)
+    local = (padded[nbr] ** 2).sum(axis=1)
+    proj = float(np.sum((q.T @ u) ** 2)) if q.shape[1] else 0.0
+    return float(np.sum(u**2)) / scale2, local / scale2, proj / scale2
+
+
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    n=st.integers(1, 12),
+    shift=st.floats(0.0, 4.0),
+    window=st.integers(2, 8),
+)
+def test_held_step_matches_numpy_and_keeps_the_window_sum(seed, n, shift, window):
+    rng = np.random.default_rng(seed)
+    k = 20
+    xy = rng.uniform(0, 0.02, (k, 2))
+    fusion = FrameFusion(xy, lambda *a: None, lambda *a: None, window=window)
+    ok = rng.random(k) > 0.1
+    sigma = rng.uniform(0.5, 2.0, k)
+    pushed = [np.where(ok, rng.normal(size=k), 0.0) for _ in range(n)]
+    # The window as the fusion holds it: the last `window` frames pushed.
+    buf, total = np.zeros((window, k)), np.zeros(k)
+    state = np.zeros(kern.STATE_SIZE)
+    state[kern.SCALE2], state[kern.SCALE_FLOOR], state[kern.SCALE_MEMORY] = 1.0, 1.0, 50.0
+    buf[0], total[:] = pushed[0], pushed[0]
+    state[kern.N], state[kern.HEAD] = 1.0, 1.0 % window
+    never = np.full(2, np.inf)
+    q = np.linalg.qr(rng.normal(size=(k, 3)))[0] * ok[:, None]
+    for x in pushed[1:]:
+        assert kern.held_step(x, ok, sigma, buf, total, state, fusion._nbr,
+                              fusion._local_limit * np.inf, q, never) == 0  # fmt: skip
+    held = pushed[-window:]
+    assert state[kern.N] == len(held)
+    assert np.allclose(total, np.sum(held, axis=0))
+    d = np.where(ok, rng.normal(size=k) + shift, 0.0)
+    scale_before = state[kern.SCALE2]
+    whole, local, proj = numpy_step(d, ok, sigma, held, fusion._nbr, q, scale_before)
+    # Each test alone at a limit just below / above its statistic.
+    for which, stat in ((0, whole), (1, local.max()), (2, proj)):
+        lim = np.full(2, np.inf)
+        local_lim = fusion._local_limit * np.inf
+        for below in (True, False):
+            s = state.copy()
+            s[kern.SCALE_SEEN] = s[kern.SCALE_MEMORY] = 1e15  # the scale kept as it is
+            s[kern.SCALE_FLOOR] = 0.0
+            f = 0.999 if below else 1.001
+            if which == 0:
+                lim = np.array([stat * f, np.inf])
+            elif which == 1:
+                local_lim = np.where(np.isclose(local, stat), local * f, np.inf)
+            else:
+                lim = np.array([np.inf, stat * f])
+            got = kern.held_step(d, ok, sigma, buf.copy(), total.copy(), s, fusion._nbr,
+                                 local_lim, q, lim)  # fmt: skip
+            assert got == ((which + 1) if below else 0)
+            lim, local_lim = np.full(2, np.inf), fusion._local_limit * np.inf
+
+
+def test_limits_are_the_chi2_quantiles(setup):
+    _, r, _, _ = setup
+    f = FrameFusion(r.taxel_xy, lambda *a: None, lambda *a: None, alpha=1e-3)
+    sizes = (f._nbr < r.n_taxels).sum(axis=1)
+    assert np.allclose(f._local_limit, chi2.isf(1e-3 / r.n_taxels, sizes))
+    assert sizes.min() >= 3 and sizes.max() <= 9  # itself and its ring at 5.5 mm
+
+
+def test_round_jacobian_against_central_differences(setup):
+    _, r, _, _ = setup
+    from tactile_contact.inverse.summary import Contact
+
+    c = Contact(1.2, (float(r.taxel_xy[30, 0]) + 7e-4, float(r.taxel_xy[30, 1])), 2e-3, "hertz")
+    jac = round_jacobian(r._round, r.taxel_xy, (c,))
+    fam = FAMILIES.index("hertz")
+
+    def reading(force, x, y, radius):
+        return r._round.predict(RoundFit(force, (x, y), fam, radius, 0.0), r.taxel_xy)
+
+    base = reading(c.force, *c.center, c.radius)
+    assert np.allclose(jac[:, 0], base)  # ∂/∂ log F of F·R is F·R
+    h = 2e-5
+    x, y = c.center
+    dx = (reading(c.force, x + h, y, c.radius) - reading(c.force, x - h, y, c.radius)) / (2 * h)
+    scale = np.abs(dx).max()
+    assert np.abs(jac[:, 1] - dx).max() < 0.1 * scale
+    t = 0.03
+    grown, shrunk = (reading(c.force, x, y, c.radius * math.exp(s)) for s in (t, -t))
+    da = (grown - shrunk) / (2 * t)
+    assert np.abs(jac[:, 3] - da).max() < 0.1 * np.abs(da).max()
+    field = Contact(1.0, (0.0, 0.0), 1e-3, "field")
+    assert round_jacobian(r._round, r.taxel_xy, (field,)) is None
