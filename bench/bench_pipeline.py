@@ -1,4 +1,5 @@
-"""End-to-end latency and CPU share of the pipeline for 1, 6 and 24 patches at 50 Hz.
+"""End-to-end latency and CPU share of driver + reconstruction for 1, 6 and 24 patches at
+50 Hz, against rclpy publishing the same messages alone.
 
 Each patch is a copy of the default hexagon (6 triangles, its own CAN addresses). One patch is
 pressed by a sliding 12 mm sphere, the others are idle, as on a robot where one contact touches
@@ -20,9 +21,7 @@ time (100 % = one core); pipeline minus frames-in is what the driver and reconst
 from __future__ import annotations
 
 import argparse
-import copy
 import itertools
-import sys
 import tempfile
 import threading
 import time
@@ -30,60 +29,15 @@ from pathlib import Path
 
 import can
 import numpy as np
-import yaml
-
-ROOT = Path(__file__).resolve().parents[1]
-LAYOUT = ROOT / "config" / "hexagon_patch.yaml"
-PERIOD_MS = 20  # 50 Hz
-
-
-def multi_patch_layout(n: int, folder: Path) -> Path:
-    """A layout of ``n`` hexagon patches on distinct CAN addresses (frames patch_<k>)."""
-    doc = yaml.safe_load(LAYOUT.read_text())
-    base = doc["patches"][0]
-    patches = []
-    for k in range(n):
-        p = copy.deepcopy(base)
-        p["name"] = f"patch{k:02d}"
-        p["frame_id"] = f"skin_patch{k:02d}"
-        for j, m in enumerate(p["modules"]):
-            m["board"] = k // 2
-            m["triangle"] = (k % 2) * 6 + j
-        patches.append(p)
-    doc["patches"] = patches
-    path = folder / f"layout_{n}.yaml"
-    path.write_text(yaml.safe_dump(doc))
-    return path
+from benchkit.skins import PERIOD_MS, multi_patch_layout, patch_frames
+from benchkit.timing import cpu_share
 
 
 def precompute_frames(layout: Path, n: int, seconds: float) -> list[list[can.Message]]:
-    """Module frames of every patch per period: patch 0 pressed by a sliding 12 mm sphere,
-    the others idle. Computed before timing so the load generator costs only the sending."""
-    from tactile_contact.model.indenters import HertzSphere
-    from tactile_contact.model.layout import load_layout
-    from tactile_contact.ros.skin_simulator import scenario_indentation
-    from tactile_contact.sim.simulator import simulator_for_patch
-
-    patches = load_layout(layout).patches
-    count = int(seconds / (PERIOD_MS * 1e-3))
-    per_patch = []
-    for k, patch in enumerate(patches[:n]):
-        sim = simulator_for_patch(
-            patch, fine_cell=5e-4, realtime=True, period_s=PERIOD_MS * 1e-3, noise_cdc=0.6, seed=k
-        )
-        ind = scenario_indentation("sweep", patch, HertzSphere(6e-3), 2.0, 4.0)
-
-        def period(
-            j: int, sim: object = sim, ind: object = ind, pressed: bool = k == 0
-        ) -> list[can.Message]:
-            # 1 s unloaded first (the driver calibrates), then the 4 s sweep, repeated.
-            t = j * PERIOD_MS * 1e-3
-            if not pressed or t < 1.0:
-                return sim.period(None, t).messages  # type: ignore[attr-defined]
-            return sim.period(ind, (t - 1.0) % 4.0).messages  # type: ignore[attr-defined]
-
-        per_patch.append([period(j) for j in range(count)])
-    return [list(itertools.chain.from_iterable(p[j] for p in per_patch)) for j in range(count)]
+    """Module frames of every patch per period (all patches' frames in one list): patch 0
+    pressed by a sliding 12 mm sphere, the others idle."""
+    periods = patch_frames(layout, n, seconds, pressed=1)
+    return [list(itertools.chain.from_iterable(p)) for p in periods]
 
 
 class FrameSender:
@@ -112,13 +66,6 @@ class FrameSender:
         self._stop.set()
         self._thread.join(timeout=2.0)
         self.bus.shutdown()
-
-
-def cpu_share(run: object, seconds: float) -> float:
-    """Process CPU time / wall time while ``run(seconds)`` executes."""
-    c0, w0 = time.process_time(), time.monotonic()
-    run(seconds)  # type: ignore[operator]
-    return (time.process_time() - c0) / (time.monotonic() - w0)
 
 
 def spin_for(executor: object, seconds: float) -> None:
@@ -243,7 +190,6 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="1 and 6 patches, 3 s each")
     ap.add_argument("--seconds", type=float, default=6.0)
     args = ap.parse_args()
-    sys.path.insert(0, str(ROOT))
     from tactile_contact.offline.build import build_layout
 
     counts = (1, 6) if args.quick else (1, 6, 24)
