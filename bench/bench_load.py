@@ -1,14 +1,15 @@
-"""Load: skin_driver and contact_reconstruction over DDS, 24 patches at 50 Hz, ≥ 60 s.
+"""Load over DDS, 24 patches at 50 Hz for ≥ 60 s: skin_driver and contact_reconstruction against
+the same run with the node's ROS work alone (the relay, ``--baseline``): drops, latency, CPU.
 
 The size of a full arm: 24 hexagon patches (144 modules, 14 400 CAN frames/s), each pressed by
 its own sliding 12 mm sphere (one contact per patch, phases staggered), as separate processes
 talking over DDS as on a robot:
 
-- the driver process: ``skin_driver`` fed by a sender thread on a python-can virtual bus
-  (frames precomputed by the simulator before timing; the sender's CPU is not counted). Each
-  patch's frames arrive together, the patches spread evenly over the period (patch k at k/24
-  of it), as free-running modules on several buses deliver them; ``--burst`` sends every
-  patch at the same instant (the worst case);
+- the driver process (bench/load_driver.py): ``skin_driver`` fed by a sender thread on a
+  python-can virtual bus (frames precomputed by the simulator before timing; the sender's CPU
+  is not counted). Each patch's frames arrive together, the patches spread evenly over the
+  period (patch k at k/24 of it), as free-running modules on several buses deliver them;
+  ``--burst`` sends every patch at the same instant (the worst case);
 - the reconstruction process: ``contact_reconstruction`` (``scripts/contact_reconstruction``);
 - this process: subscribes to every ``<patch>/contact`` and to ``/diagnostics``.
 
@@ -35,11 +36,9 @@ from __future__ import annotations
 
 import argparse
 import collections
-import contextlib
 import json
 import math
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -49,198 +48,14 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from benchkit import ROOT
+from benchkit.skins import PERIOD_MS, multi_patch_layout
+from benchkit.timing import cpu_seconds, profile
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "bench"))
-
-from bench_pipeline import multi_patch_layout  # noqa: E402
-
-PERIOD_MS = 20
 OUT = ROOT / "out" / "bench_load"
 
 
-# -- the driver process -------------------------------------------------------------------------
-def precompute(layout: Path, n: int, seconds: float, pressed: int) -> list[list[list]]:
-    """Frames of every patch per period ([period][patch] → frames), the first ``pressed``
-    patches each pressed by its own sliding sphere (4 s sweep after 1 s unloaded, phases
-    staggered), the others idle (noise only), computed before timing."""
-    from tactile_contact.model.indenters import HertzSphere
-    from tactile_contact.model.layout import load_layout
-    from tactile_contact.ros.skin_simulator import scenario_indentation
-    from tactile_contact.sim.simulator import simulator_for_patch
-
-    count = int(seconds / (PERIOD_MS * 1e-3))
-    per_patch = []
-    for k, patch in enumerate(load_layout(layout).patches[:n]):
-        sim = simulator_for_patch(
-            patch, fine_cell=5e-4, realtime=True, period_s=PERIOD_MS * 1e-3, noise_cdc=0.6, seed=k
-        )
-        ind = scenario_indentation("sweep", patch, HertzSphere(6e-3), 2.0, 4.0)
-        rows = []
-        for j in range(count):
-            t = j * PERIOD_MS * 1e-3
-            touch = None if t < 1.0 or k >= pressed else ind
-            rows.append(sim.period(touch, (t - 1.0 + 0.17 * k) % 4.0).messages)
-        per_patch.append(rows)
-    return [[p[j] for p in per_patch] for j in range(count)]
-
-
-def driver_process(layout: Path, n: int, channel: str, pressed: int, burst: bool) -> None:
-    """Run skin_driver with a frame sender until SIGINT; print READY and a final JSON line."""
-    import can
-    import rclpy
-    from can.interfaces import virtual
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-    from rclpy.parameter import Parameter
-
-    from tactile_contact.ros.skin_driver import SkinDriver
-
-    frames = precompute(layout, n, 5.0 + 4.0, pressed)  # 1 s unloaded then the sweep, cycled after
-    rclpy.init()
-    params = {
-        "layout": str(layout),
-        "interface": "virtual",
-        "channel": channel,
-        "period_ms": PERIOD_MS,
-        "max_wait_ms": float(PERIOD_MS),
-        "diagnostics_period_s": 1.0,
-    }
-    node = SkinDriver(parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
-    bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
-    stop = threading.Event()
-    sent = [0]
-    info: dict = {}
-
-    # The load generator puts each frame straight into the receive queue of the driver's bus,
-    # as the kernel does into a socket: VirtualBus.send deep-copies every frame for every
-    # receiver, which at 14 400 frames/s cost the sender thread (and, through the GIL, the
-    # driver sharing its process) a large share of a core. The frames are not modified by the
-    # driver, so each precomputed one is reused every cycle with a new timestamp.
-    receivers = [q for q in virtual.channels[channel] if q is not bus.queue]
-
-    # Patch k's frames go out k/n of a period after patch 0's (``burst``: all at once). Why:
-    # on a robot each patch's modules run on their own clocks, and the 14 400 frames/s of an
-    # arm need several 1 Mbit/s buses (a frame takes 0.11-0.13 ms), so the patches' readings
-    # arrive spread over the period; all 24 in the same instant is a worst case no bus makes,
-    # and it queues the 24th patch behind 23 solves whatever their speed.
-    slots = 1 if burst else n
-    step = PERIOD_MS * 1e-3 / slots
-
-    # Frames flow once the parent says GO (a line on stdin): when every patch's taxel topic
-    # has its subscriber, so that none is lost to discovery and counted as dropped.
-    go = threading.Event()
-    threading.Thread(target=lambda: (sys.stdin.readline(), go.set()), daemon=True).start()
-
-    def send() -> None:
-        info["sender_tid"] = threading.get_native_id()
-        go.wait()
-        t0 = time.monotonic()
-        j = 0
-        while not stop.wait(max(0.0, t0 + j * step - time.monotonic())):
-            period, slot = divmod(j, slots)
-            # after the first pass, skip the unloaded second: contact on every patch
-            if period >= len(frames):
-                period = 50 + (period - 50) % (len(frames) - 50)
-            now = time.time()
-            for patch in frames[period] if burst else [frames[period][slot]]:
-                for msg in patch:
-                    msg.timestamp = now  # stamped when sent, as a bus receive would be
-                    for q in receivers:
-                        q.put_nowait(msg)
-                    sent[0] += 1
-            j += 1
-
-    sender = threading.Thread(target=send, name="sender", daemon=True)
-    signal.signal(signal.SIGUSR1, lambda *_: stop.set())  # stop sending, keep the driver up
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    sender.start()
-    time.sleep(0.1)
-    print("READY " + json.dumps({"sender_tid": info["sender_tid"]}), flush=True)
-    with contextlib.suppress(KeyboardInterrupt, ExternalShutdownException):
-        executor.spin()
-    stop.set()
-    sender.join(2.0)
-    time.sleep(0.5)  # the driver drains what is queued
-    stream = node._stream
-    c = stream.assembler.counters
-    result = {
-        "sent": sent[0],
-        "frames": c.frames,
-        "readings": c.readings,
-        "rejected": c.rejected,
-        "incomplete": c.incomplete,
-        "orphan_b": c.orphan_b,
-        "published": sum(p.published for p in stream._patches),
-        "stale_publications": sum(p.stale_publications for p in stream._patches),
-    }
-    node.destroy_node()
-    bus.shutdown()
-    rclpy.try_shutdown()
-    print("RESULT " + json.dumps(result), flush=True)
-
-
 # -- the measuring process ----------------------------------------------------------------------
-def cpu_seconds(pid: int, exclude_tid: int | None = None) -> float:
-    import psutil
-
-    proc = psutil.Process(pid)
-    if exclude_tid is None:
-        t = proc.cpu_times()
-        return t.user + t.system
-    return sum(t.user_time + t.system_time for t in proc.threads() if t.id != exclude_tid)
-
-
-def profile(pid: int, seconds: float, skip: str = "", name: str = "recon") -> str:
-    """py-spy samples of ``pid`` → the hottest functions (self and inclusive share); stacks
-    through a function named ``skip`` (the load generator) are left out."""
-    spy = shutil.which("py-spy") or str(Path(sys.executable).with_name("py-spy"))
-    if not Path(spy).exists():
-        return "py-spy not installed (pip install py-spy): no profile"
-    out = OUT / f"{name}_profile.txt"
-    subprocess.run(
-        [
-            spy,
-            "record",
-            "-p",
-            str(pid),
-            "-d",
-            str(int(seconds)),
-            "-r",
-            "200",
-            "-f",
-            "raw",
-            "-o",
-            str(out),
-            "--nonblocking",
-        ],
-        check=True,
-        capture_output=True,
-    )
-    own: collections.Counter[str] = collections.Counter()
-    incl: collections.Counter[str] = collections.Counter()
-    total = 0
-    for line in out.read_text().splitlines():
-        stack, _, count = line.rpartition(" ")
-        n = int(count)
-        frames = [
-            f.split(" (")[0] + " (" + f.split(" (")[1].split(":")[0] + ")" if " (" in f else f
-            for f in stack.split(";")
-        ]
-        total += n
-        own[frames[-1]] += n
-        for f in set(frames):
-            incl[f] += n
-    idle = sum(n for f, n in own.items() if "wait" in f or "select" in f or "spin_once" in f)
-    lines = [f"{total} samples over {seconds:.0f} s ({idle / max(total, 1):.0%} waiting)"]
-    lines.append("self time:")
-    lines += [f"  {n / total:6.1%}  {f}" for f, n in own.most_common(15)]
-    lines.append("inclusive time:")
-    lines += [f"  {n / total:6.1%}  {f}" for f, n in incl.most_common(25)]
-    return "\n".join(lines)
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seconds", type=float, default=60.0, help="measured time (≥ 60 s)")
@@ -270,18 +85,7 @@ def main() -> int:
         action="store_true",
         help="every patch's frames at the same instant (default: patches spread over the period)",
     )
-    ap.add_argument(
-        "--driver-child",
-        nargs=5,
-        metavar=("LAYOUT", "N", "CHANNEL", "K", "BURST"),
-        help=argparse.SUPPRESS,
-    )
     args = ap.parse_args()
-    if args.driver_child:
-        layout_, n_, channel_, k_, burst_ = args.driver_child
-        driver_process(Path(layout_), int(n_), channel_, int(k_), burst_ == "1")
-        return 0
-
     from tactile_contact.offline.build import build_layout
 
     n = args.patches
@@ -390,8 +194,7 @@ def run_phase(
     driver = subprocess.Popen(
         [
             sys.executable,
-            __file__,
-            "--driver-child",
+            str(ROOT / "bench" / "load_driver.py"),
             str(layout),
             str(n),
             "bench_load",
@@ -467,8 +270,16 @@ def run_phase(
     d1 = cpu_seconds(driver.pid, sender_tid)
     r1 = [cpu_seconds(r.pid) for r in recons]
     measuring.clear()
-    prof = profile(recons[0].pid, args.profile) if args.profile and not args.driver_only else ""
-    dprof = profile(driver.pid, args.profile, "send", "driver") if args.profile > 0 else ""
+    prof = (
+        profile(recons[0].pid, args.profile, OUT / "recon_profile.txt")
+        if args.profile and not args.driver_only
+        else ""
+    )
+    dprof = (
+        profile(driver.pid, args.profile, OUT / "driver_profile.txt", skip="send")
+        if args.profile > 0
+        else ""
+    )
     driver.send_signal(signal.SIGUSR1)  # frames stop; the driver drains and publishes the rest
     time.sleep(3.0)  # and the reconstruction's diagnostics count what it received
     frames_seen = sum(recon_frames.values())

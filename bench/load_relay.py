@@ -14,10 +14,9 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import benchkit  # noqa: F401  (the package from this tree)
 
 
 def main(patches: list[str]) -> None:
