@@ -37,8 +37,8 @@ def forearm():
 
 @pytest.fixture(scope="module")
 def leg():
-    # One patch per board, as config/icub/left_leg_lower.yaml (docs/icub.md says why).
-    return import_part(*LEG, boards=(8, 9, 10, 11), split="board")
+    # 380 taxels: one patch per board by default, as config/icub/left_leg_lower.yaml.
+    return import_part(*LEG, boards=(8, 9, 10, 11))
 
 
 # -- readers -----------------------------------------------------------------------------
@@ -245,6 +245,17 @@ def test_forearm_anomalies(forearm):
     mirrored = sorted(a.slot for a in rep.anomalies if a.kind == "mirrored_pattern")
     assert mirrored == list(range(16))  # exactly board 13's triangles
     assert "constant_normals" not in rep.kinds()  # the forearm's normals are real
+
+
+def test_auto_split_keeps_the_forearm_whole_and_splits_the_leg(forearm, leg):
+    assert [p.name for p in forearm.layout.patches] == ["left_forearm"]
+    assert [p.name for p in leg.layout.patches] == [f"left_leg_lower_b{a}" for a in (8, 9, 10, 11)]
+    assert any("more than 300 for one patch" in n for n in leg.report.notes)
+    whole = import_part(*LEG, boards=(8, 9, 10, 11), split="part")
+    assert len(whole.layout.patches) == 1 and whole.report.patches[0].within_targets
+    torso = import_part(DATA / "torso.ini", DATA / "torso.txt", boards=(7, 8, 9, 10))
+    assert len(torso.layout.patches) == 4  # not one cylinder (rows 5 mm rms off the best)
+    assert all(f.within_targets for f in torso.report.patches)
 
 
 def test_leg_anomalies(leg):

@@ -7,9 +7,10 @@ YAML text, validated by :func:`tactile_contact.model.layout.parse_layout`) with 
 
 Patches (``split``): ``part`` makes one patch of the whole part, ``board`` one per CAN board,
 ``auto`` (default) the whole part when its taxel rows lie within AUTO_SURFACE_RMS of one fitted
-cylinder or plane and its neighbour distances meet the targets (median ≤ 1.5 mm, 95th
-percentile ≤ 4 mm), else one per board. One patch per part keeps contacts that straddle two
-boards whole; a part that is not one cylinder (the torso, the upper arm) is split. Triangles
+cylinder or plane, its neighbour distances meet the targets (median ≤ 1.5 mm, 95th
+percentile ≤ 4 mm) and it has at most AUTO_MAX_TAXELS taxels, else one per board. One patch
+per part keeps contacts that straddle two boards whole; a part that is not one cylinder (the
+torso, the upper arm) or is large (the legs) is split. Triangles
 with different shift, CDC offset or noLoad never share a patch (one sensor section each).
 """
 
@@ -37,8 +38,11 @@ from tactile_contact.offline.icub.slots import Item, gather
 from tactile_contact.offline.icub.surface_fit import SurfaceFit
 
 SPLITS = ("auto", "part", "board")
-#: ``auto`` keeps a part whole when its rows lie this close (rms) [m] to one fitted surface.
+#: ``auto`` keeps a part whole when its rows lie this close (rms) [m] to one fitted surface
+#: and it has at most AUTO_MAX_TAXELS taxels (a 240-taxel forearm builds in ≈ 20 s of CPU; the
+#: 380-taxel lower leg as one patch in ≈ 40 s and its deflection operator grows as cells²).
 AUTO_SURFACE_RMS = 3.0e-3
+AUTO_MAX_TAXELS = 300
 
 #: What every imported patch gets besides its modules (the iCub V2 skin: 2 mm Ecoflex-like
 #: layer, 2 mm electrodes; docs/layout.md). The deflection grid is as coarse as the traction
@@ -150,15 +154,23 @@ def _choose_patches(
             whole = _place(stem, group, pos, report)
             p = whole[0]
             ok = p.figures.within_targets and p.fit.rms <= AUTO_SURFACE_RMS
-            if split == "part" or ok or len({it.board_index for it in group}) == 1:
+            small = p.figures.taxels <= AUTO_MAX_TAXELS
+            if split == "part" or (ok and small) or len({it.board_index for it in group}) == 1:
                 chosen.append(whole)
                 continue
-            report.notes.append(
-                f"{stem}: one surface does not describe the whole part (rows off a "
-                f"{p.fit.shape} by {p.fit.rms * 1e3:.1f} mm rms, neighbour distances median "
-                f"{p.figures.median * 1e3:.2f} / p95 {p.figures.p95 * 1e3:.2f} mm): one patch "
-                "per board"
-            )
+            if not ok:
+                why = (
+                    f"one surface does not describe the whole part (rows off a {p.fit.shape} "
+                    f"by {p.fit.rms * 1e3:.1f} mm rms, neighbour distances median "
+                    f"{p.figures.median * 1e3:.2f} / p95 {p.figures.p95 * 1e3:.2f} mm)"
+                )
+            else:
+                why = (
+                    f"{p.figures.taxels} taxels are more than {AUTO_MAX_TAXELS} for one patch "
+                    "(build time and memory grow with taxels × cells; a contact across a "
+                    "board seam is then seen in part by each patch; --split part keeps one)"
+                )
+            report.notes.append(f"{stem}: {why}: one patch per board")
         for b in sorted({it.board_index for it in group}):
             sub = [it for it in group if it.board_index == b]
             chosen.append(_place(f"{stem}_b{sub[0].addresses[0]}", sub, pos, report))
