@@ -12,6 +12,8 @@ Everything here is a thin convenience over rclpy; no node logic lives in this mo
   defaults (every value at debug level).
 - :func:`diagnostic_status`: a ``DiagnosticStatus`` from a name, level, message and key/values.
 - :func:`run_node`: the standard ``main()`` of a node executable.
+- :func:`publish_while_up`: publish, unless the context was shut down under the caller (Ctrl-C
+  while a callback runs); :func:`spin_until_shutdown` ends quietly on such a failure too.
 """
 
 from __future__ import annotations
@@ -31,7 +33,9 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
     SetParametersResult,
 )
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.context import Context
+from rclpy.exceptions import InvalidHandle
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -210,10 +214,37 @@ def spin_until_shutdown(executor: Executor, context: Context | None = None) -> N
     SingleThreadedExecutor's, which waits without a timeout, hung once in the lifecycle test
     (60 shutdowns under a spinning executor a run, over many runs; cause not found). A wait
     of at most ``SPIN_STEP_S`` re-checks the context whatever woke it or failed to.
+
+    A callback that fails because the context was shut down while it ran (rclpy's SIGINT
+    handler does that from another thread: a publish then raises "publisher's context is
+    invalid", or InvalidHandle once the entity is destroyed) ends the spin as the shutdown
+    does; any other failure, or one while the context is up, propagates.
     """
     ok = (context or rclpy.get_default_context()).ok
     while ok():
-        executor.spin_once(timeout_sec=SPIN_STEP_S)
+        try:
+            executor.spin_once(timeout_sec=SPIN_STEP_S)
+        except ExternalShutdownException:
+            return
+        except (RCLError, InvalidHandle):
+            if ok():
+                raise
+            return
+
+
+def publish_while_up(node: Node, publisher: Any, msg: Any) -> bool:
+    """Publish ``msg`` unless ``node``'s context is shut down, also when that happens during
+    the call (a Ctrl-C while a callback runs: see :func:`spin_until_shutdown`); whether it was
+    published. A failure while the context is up propagates."""
+    if not node.context.ok():
+        return False
+    try:
+        publisher.publish(msg)
+    except (RCLError, InvalidHandle):
+        if node.context.ok():
+            raise
+        return False
+    return True
 
 
 def run_node(

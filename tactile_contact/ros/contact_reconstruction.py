@@ -5,10 +5,19 @@ patch, loaded at start (a stale or broken bundle is refused with one log line an
 patches go on). With ``layout`` set, every patch of that layout must have a bundle: one that has
 none, or none usable, is an ERROR in /diagnostics and a warning at start naming the
 ``tactile-contact-build`` command that makes it. Each contact is logged when it starts (its
-force and place) and when it ends (its peak force and duration). Per patch it subscribes to
-``<patch>/taxels`` and publishes
+force and place) and when it ends (its peak force and duration).
 
-- ``<patch>/contact`` (tactile_contact/ContactState), every frame;
+Input (``input``): ``patches`` takes each patch's ``<patch>/taxels`` (TaxelArray) as it
+always did; ``batches`` takes ``taxel_batches`` (TaxelBatch: a bus's patches in one message,
+as skin_driver publishes them; tactile_contact.ros.contact_batches). A skin too large for one
+core is split over worker processes (``worker_index`` of ``worker_count``: each serves its
+share of the patches, balanced by taxels, tactile_contact.ros.workers), which announce
+themselves and never serve a patch twice (tactile_contact.ros.worker_link). It publishes
+
+- ``contacts`` (tactile_contact/ContactArray): the summaries of every patch of an input
+  message in one message;
+- ``<patch>/contact`` (tactile_contact/ContactState): every frame with ``input: patches``;
+  with ``batches`` while something subscribes to it;
 - ``<patch>/traction`` (sensor_msgs/Image 32FC1, Pa) and ``<patch>/deflection`` (32FC1, m);
 - ``<patch>/traction_geometry``, ``<patch>/deflection_geometry`` (tactile_contact/GridGeometry,
   reliable + transient local, published once);
@@ -24,496 +33,53 @@ The subscription keeps only the newest frame, so a slow frame never queues old o
 
 from __future__ import annotations
 
-import math
-import sys
 import time
-from collections import deque
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Image, PointCloud2
-from std_msgs.msg import Header
-from threadpoolctl import threadpool_limits
-from visualization_msgs.msg import MarkerArray
 
-from tactile_contact.inverse.detection import NoiseTracker
 from tactile_contact.inverse.reconstruction import Reconstructor
 from tactile_contact.model.layout import load_layout
-from tactile_contact.msg import ContactState, GridGeometry, TaxelArray
-from tactile_contact.offline.bundle import load_bundle
-from tactile_contact.ros import convert
+from tactile_contact.offline.bundle import load_bundle, read_manifest
 from tactile_contact.ros.common import (
     DIAGNOSTICS_QOS,
     ERROR,
     OK,
-    STATIC_QOS,
     STRING_ARRAY_EMPTY,
     WARN,
     declare_parameter,
     diagnostic_status,
     log_parameters,
+    publish_while_up,
     run_node,
-    seconds_from_stamp,
 )
-
-# The online products are small (taxels × cells, a few hundred kB): extra BLAS threads only
-# spin-wait between frames (measured: 1.25 instead of 0.48 cores for one patch at 50 Hz).
-threadpool_limits(limits=1, user_api="blas")
-
-#: A fault of one kind on one patch is logged at most once per this many seconds.
-LOG_THROTTLE_S = 5.0
-#: Subscribers to the optional outputs (images, markers, cloud) are counted this often [s].
-SUBSCRIBERS_RECOUNT_S = 0.2
-#: A contact has ended (and is logged so) after frames without contact for this long [s] of
-#: their stamps: a frame or two lost near the detection threshold does not split a press.
-CONTACT_END_S = 0.25
-
-OUTPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
-QUIET_EVENTS = PublisherEventCallbacks(use_default_callbacks=False)
-
-# A taxel with any of these flags is left out of the solve.
-_UNUSABLE = (
-    TaxelArray.STATUS_DISABLED
-    | TaxelArray.STATUS_STUCK
-    | TaxelArray.STATUS_DEAD
-    | TaxelArray.STATUS_SATURATED
+from tactile_contact.ros.contact_batches import ContactBatches
+from tactile_contact.ros.patch_pipeline import (  # noqa: F401  (their old home: re-exported)
+    CONTACT_END_S,
+    OUTPUT_QOS,
+    QUIET_EVENTS,
+    PatchPipeline,
+    PatchStats,
+    check_result,
 )
+from tactile_contact.ros.worker_link import WorkerLink
+from tactile_contact.ros.workers import worker_patches
 
 PARAMETERS = (
     "bundles_dir",
     "layout",
     "patches",
+    "input",
+    "worker_index",
+    "worker_count",
     "queue_depth",
     "visualization_every",
     "taxel_full_scale",
     "diagnostics_period",
     "follow_contacts",
 )
-
-
-@dataclass
-class PatchStats:
-    """Counters and timings of one patch since start (timings keep the last 1000 frames)."""
-
-    frames: int = 0
-    solved: int = 0
-    constrained: int = 0
-    skipped_idle: int = 0
-    skipped_deflection: int = 0
-    skipped_images: int = 0
-    skipped_visualization: int = 0
-    bad_frames: int = 0
-    foreign_frames: int = 0
-    nonfinite_frames: int = 0
-    nonfinite_readings: int = 0
-    out_of_range: int = 0
-    unpublishable: int = 0
-    internal_errors: int = 0
-    contacts: int = 0  # contacts started (a press, from its first frame to CONTACT_END_S after)
-    contact_frames: int = 0
-    peak_force: float = 0.0  # largest total force [N] of any frame
-    last_error: str = ""
-    latency_s: deque = field(default_factory=lambda: deque(maxlen=1000))
-    stage_s: dict = field(default_factory=dict)
-
-    def time(self, stage: str, seconds: float) -> None:
-        self.stage_s.setdefault(stage, deque(maxlen=1000)).append(seconds)
-
-
-def _finite(x: float) -> float:
-    """x, NaN → 0 and ±inf → ±the largest float (np.nan_to_num of a scalar, 20× faster)."""
-    if math.isfinite(x):
-        return x
-    return 0.0 if math.isnan(x) else math.copysign(sys.float_info.max, x)
-
-
-def check_result(result: Any) -> None:
-    """Refuse a result that no message may carry: anything non-finite, a negative force, area
-    or peak pressure (raises :class:`convert.NonFiniteError`, so nothing of the frame goes out).
-    """
-    values = [result.total_force, result.contact_area, result.peak_pressure, *result.cop]
-    values += [x for c in result.contacts for x in (c.force, c.radius, *c.center)]
-    if not all(map(math.isfinite, values)):  # (a dozen scalars: numpy's call costs more)
-        raise convert.NonFiniteError("contact summary: non-finite value(s); not published")
-    forces = [result.total_force, result.contact_area, result.peak_pressure]
-    forces += [x for c in result.contacts for x in (c.force, c.radius)]
-    if min(forces) < 0.0:
-        raise convert.NonFiniteError(
-            f"contact summary: negative force, area, pressure or radius ({min(forces):.3g}); "
-            "not published"
-        )
-    for name in ("traction", "deflection"):
-        field_ = getattr(result, name)
-        if field_ is not None and not np.all(np.isfinite(field_)):
-            raise convert.NonFiniteError(f"{name}: non-finite value(s); not published")
-
-
-class PatchPipeline:
-    """Publishers, the reconstructor and the taxel mapping of one patch."""
-
-    def __init__(
-        self, node: Node, recon: Reconstructor, bundle: Path, signature: tuple = ()
-    ) -> None:
-        self.node = node
-        self.bundle = bundle
-        self.name: str = recon.patch
-        self.frame_id: str = recon.frame_id
-        self.stats = PatchStats()
-        self.signature = signature  # of the bundle folder when loaded (bundle_signature)
-        self.bundle_problem = ""  # why the bundle on disk is not the one in use ("" if it is)
-        self.reloads = 0
-        self._logged: dict[str, float] = {}  # fault kind → monotonic time last logged
-        # The contact being followed in the log: (stamp of its first frame, of its last, its
-        # peak force [N]); None between contacts.
-        self._contact: tuple[float, float, float] | None = None
-        self._last_frame = -math.inf  # monotonic time of the last frame taken [s]
-        p = self.name
-
-        def publisher(msg_type: Any, topic: str, qos: QoSProfile) -> Any:
-            # Without rclpy's default QoS-event handlers: two per publisher, each one more
-            # entity in every wait of the executor (24 patches × 8 outputs made the executor
-            # a fifth of the node's time). A subscriber whose QoS does not match still warns,
-            # on its side (ros2 topic echo, rviz2).
-            return node.create_publisher(msg_type, topic, qos, event_callbacks=QUIET_EVENTS)
-
-        self.pub_contact = publisher(ContactState, f"{p}/contact", OUTPUT_QOS)
-        self.pub_traction = publisher(Image, f"{p}/traction", OUTPUT_QOS)
-        self.pub_deflection = publisher(Image, f"{p}/deflection", OUTPUT_QOS)
-        self.pub_geometry = {
-            g: publisher(GridGeometry, f"{p}/{g}_geometry", STATIC_QOS)
-            for g in ("traction", "deflection")
-        }
-        self.pub_markers = publisher(MarkerArray, f"{p}/taxel_markers", OUTPUT_QOS)
-        self.pub_cloud = publisher(PointCloud2, f"{p}/pressure_cloud", OUTPUT_QOS)
-        self.pub_contact_markers = publisher(MarkerArray, f"{p}/contact_markers", OUTPUT_QOS)
-        # Depth 1 by default: a reconstruction that falls behind drops old frames instead of
-        # queueing them, so what it publishes is always the newest reading.
-        input_qos = QoSProfile(depth=node.queue_depth, reliability=ReliabilityPolicy.BEST_EFFORT)
-        self.sub = node.create_subscription(TaxelArray, f"{p}/taxels", self.on_taxels, input_qos)
-        self._subscribed: dict[Any, int] = {}
-        self._subscribed_at = -math.inf
-        self.use(recon)
-
-    def subscribed(self, pub: Any) -> bool:
-        """Whether ``pub`` has a subscriber, counted at most every SUBSCRIBERS_RECOUNT_S. Why:
-        each count is an rmw query (7 a frame cost 2 % of the node's time at 24 patches); a
-        new subscriber gets its first message that much later."""
-        now = time.monotonic()
-        if now - self._subscribed_at > SUBSCRIBERS_RECOUNT_S:
-            self._subscribed_at = now
-            self._subscribed = {
-                o: o.get_subscription_count()
-                for o in (
-                    self.pub_traction,
-                    self.pub_deflection,
-                    self.pub_markers,
-                    self.pub_cloud,
-                    self.pub_contact_markers,
-                )
-            }
-        return self._subscribed[pub] > 0
-
-    def use(self, recon: Reconstructor) -> None:
-        """Serve with ``recon`` from now on (at start, and when the bundle was replaced)."""
-        self.recon = recon
-        # Each taxel's noise, learnt from frames without contact; it sets the detection
-        # threshold (tactile_contact.inverse.detection). Floor: the bare rounding of one count.
-        self.noise = NoiseTracker(recon.default_noise / np.sqrt(2.0), start=recon.default_noise)
-        self._ids = np.asarray(recon.taxel_ids, dtype=np.int64)
-        self._perm_key: tuple[int, ...] | None = None
-        self._perm: np.ndarray | None = None
-        header = Header(frame_id=self.frame_id)
-        header.stamp = self.node.get_clock().now().to_msg()
-        for kind, grid in (
-            ("traction", recon.traction_grid),
-            ("deflection", recon.deflection_grid),
-        ):
-            self.pub_geometry[kind].publish(convert.grid_geometry(grid, kind, self.name, header))
-
-    def _permutation(self, ids: np.ndarray) -> np.ndarray:
-        """Index into the message arrays for each bundle taxel (cached per id order)."""
-        key = tuple(ids.tolist())
-        if key != self._perm_key:
-            where = {int(t): i for i, t in enumerate(ids)}
-            missing = [int(t) for t in self._ids if int(t) not in where]
-            if missing:
-                raise ValueError(
-                    f"taxel ids {[hex(t) for t in missing[:5]]} of bundle {self.bundle} "
-                    f"missing from the message ({len(missing)} in all)"
-                )
-            self._perm = np.array([where[int(t)] for t in self._ids], dtype=np.intp)
-            self._perm_key = key
-        assert self._perm is not None
-        return self._perm
-
-    def on_taxels(self, msg: TaxelArray) -> None:
-        """One frame: map, solve what is wanted, publish. Never raises into the executor:
-        an exception would end the executor's spin and with it every other patch."""
-        try:
-            self._on_taxels(msg)
-        except Exception as exc:
-            self.stats.internal_errors += 1
-            self._fault("internal error", f"{type(exc).__name__}: {exc}; frame dropped")
-
-    def _fault(self, kind: str, text: str, warn: bool = False) -> None:
-        """Record a fault for /diagnostics and log it (once per 5 s per patch and kind)."""
-        self.stats.last_error = f"{kind}: {text}"
-        now = time.monotonic()
-        if now - self._logged.get(kind, -math.inf) < LOG_THROTTLE_S:
-            return
-        self._logged[kind] = now
-        # (rclpy keys its loggers by call site, each with one severity: two call sites)
-        if warn:
-            self.node.get_logger().warning(f"patch {self.name}: {kind}: {text}")
-        else:
-            self.node.get_logger().error(f"patch {self.name}: {kind}: {text}")
-
-    def _on_taxels(self, msg: TaxelArray) -> None:
-        stats = self.stats
-        stats.frames += 1
-        self._last_frame = time.monotonic()
-        t0 = time.perf_counter()
-        if msg.patch and msg.patch != self.name:
-            stats.foreign_frames += 1
-            self._fault(
-                "frame of another patch",
-                f"TaxelArray of patch {msg.patch!r} on {self.sub.topic_name}; ignored",
-            )
-            return
-        try:
-            n = len(msg.taxel_ids)
-            if not (len(msg.delta_c) == len(msg.status) == n):
-                raise ValueError(
-                    f"array lengths differ: taxel_ids {n}, delta_c {len(msg.delta_c)}, "
-                    f"status {len(msg.status)}"
-                )
-            perm = self._permutation(np.asarray(msg.taxel_ids, dtype=np.int64))
-            delta_c = np.asarray(msg.delta_c, dtype=np.float64)[perm]
-            status = np.asarray(msg.status, dtype=np.uint8)[perm]
-        except ValueError as exc:
-            stats.bad_frames += 1
-            self._fault("bad TaxelArray", str(exc))
-            return
-        finite = np.isfinite(delta_c)
-        if not finite.all():
-            # NaN or inf cannot come from the driver: left out of the solve, said, counted.
-            bad = int(np.count_nonzero(~finite))
-            stats.nonfinite_frames += 1
-            stats.nonfinite_readings += bad
-            self._fault("non-finite ΔC", f"{bad} taxel(s) NaN or inf; left out", warn=True)
-        valid = ((status & _UNUSABLE) == 0) & finite
-        want_deflection = self.subscribed(self.pub_deflection)
-        want_traction = self.subscribed(self.pub_traction) or self.subscribed(self.pub_cloud)
-        t1 = time.perf_counter()
-        result = self.recon.solve(
-            np.where(valid, delta_c, 0.0),
-            valid=valid,
-            want_traction=want_traction,
-            want_deflection=want_deflection,
-            noise=self.noise.sigma,
-        )
-        if not result.in_contact:
-            self.noise.update(
-                self.recon.compression(np.where(valid, delta_c, 0.0)), valid, result.in_contact
-            )
-        t2 = time.perf_counter()
-        out_of_range = int(valid.sum()) - result.taxels_used
-        if out_of_range:
-            # Readings no 8-bit value gives: the driver and the bundle disagree on the
-            # count→farad gain or shift. Said, counted, and the other taxels still solved.
-            stats.out_of_range += out_of_range
-            self._fault(
-                "out of range",
-                f"{out_of_range} taxel(s) read beyond the converter's full scale "
-                f"(|ΔC| > {self.recon.full_scale:.3g} F) or below −C0; left out",
-                warn=True,
-            )
-        stats.time("map", t1 - t0)
-        stats.time("solve", t2 - t1)
-        if not result.in_contact:
-            stats.skipped_idle += 1
-        else:
-            stats.solved += 1
-            stats.constrained += int(result.solver == "nnls")
-        self._follow_contact(seconds_from_stamp(msg.header.stamp), result)
-        if not want_deflection:
-            stats.skipped_deflection += 1
-        self._publish(msg, result, delta_c, valid, t0)
-        stats.time("publish", time.perf_counter() - t2)
-
-    def _follow_contact(self, stamp: float, result: Any) -> None:
-        """Count contacts and log one line when each starts and one when it ends."""
-        force = float(result.total_force) if result.in_contact else 0.0
-        if not math.isfinite(force):
-            return  # (refused by check_result, said there)
-        c = self._contact
-        if result.in_contact:
-            self.stats.contact_frames += 1
-            self.stats.peak_force = max(self.stats.peak_force, force)
-            if c is None:
-                self.stats.contacts += 1
-                x, y = (float(v) * 1e3 for v in result.cop)
-                self.node.get_logger().info(
-                    f"patch {self.name}: contact: {force:.2f} N at ({x:.1f}, {y:.1f}) mm"
-                )
-                self._contact = (stamp, stamp, force)
-            else:
-                self._contact = (c[0], stamp, max(c[2], force))
-        elif c is not None and stamp - c[1] >= CONTACT_END_S:
-            self.end_contact()
-
-    def end_contact(self) -> None:
-        """Log the end of the contact being followed (if any)."""
-        c, self._contact = self._contact, None
-        if c is not None:
-            self.node.get_logger().info(
-                f"patch {self.name}: contact ended: peak {c[2]:.2f} N, {c[1] - c[0]:.2f} s"
-            )
-
-    def summary(self) -> str:
-        """One line: what this patch took, found and dropped since start."""
-        s = self.stats
-        dropped = s.bad_frames + s.foreign_frames + s.unpublishable + s.internal_errors
-        text = (
-            f"{self.name}: {s.frames} frames, {s.contacts} contact(s) in {s.contact_frames} "
-            f"frames, peak force {s.peak_force:.2f} N"
-        )
-        return text + (f", {dropped} frame(s) dropped ({s.last_error})" if dropped else "")
-
-    def _publish(
-        self, msg: TaxelArray, result: Any, delta_c: np.ndarray, valid: np.ndarray, t0: float
-    ) -> None:
-        stats = self.stats
-        header = Header(stamp=msg.header.stamp, frame_id=self.frame_id)
-        try:
-            check_result(result)
-            if result.traction is not None and self.subscribed(self.pub_traction):
-                self.pub_traction.publish(convert.grid_image("traction", result.traction, header))
-            else:
-                stats.skipped_images += 1
-            if result.deflection is not None:
-                self.pub_deflection.publish(
-                    convert.grid_image("deflection", result.deflection, header)
-                )
-            self._publish_visualization(header, result, delta_c, valid)
-            now = self.node.get_clock().now()
-            latency = now.nanoseconds * 1e-9 - seconds_from_stamp(msg.header.stamp)
-            stats.latency_s.append(latency)
-            self.pub_contact.publish(
-                convert.contact_state(
-                    result,
-                    self.name,
-                    header,
-                    solver=str(result.solver),
-                    solver_success=bool(result.success),
-                    solver_iterations=int(result.iterations),
-                    residual_norm=_finite(float(result.residual_norm)),
-                    solve_time=float(result.solve_time),
-                    latency=float(latency),
-                    taxels_used=int(result.taxels_used),
-                    taxels_active=int(result.taxels_active),
-                )
-            )
-        except convert.NonFiniteError as exc:
-            stats.unpublishable += 1
-            self._fault("not published", str(exc))
-
-    def _publish_visualization(
-        self, header: Header, result: Any, delta_c: np.ndarray, valid: np.ndarray
-    ) -> None:
-        every = self.node.visualization_every
-        outputs = (self.pub_markers, self.pub_cloud, self.pub_contact_markers)
-        if not any(self.subscribed(o) for o in outputs) or self.stats.frames % every:
-            self.stats.skipped_visualization += 1
-            return
-        if self.subscribed(self.pub_markers):
-            self.pub_markers.publish(
-                convert.taxel_markers(
-                    self.recon.taxel_xy,
-                    delta_c,
-                    valid,
-                    header,
-                    self.name,
-                    radius=float(self.recon.params.get("taxel_radius", 2e-3)),
-                    full_scale=self.node.taxel_full_scale,
-                )
-            )
-        if result.traction is not None and self.subscribed(self.pub_cloud):
-            self.pub_cloud.publish(
-                convert.pressure_cloud(self.recon.traction_grid, result.traction, header)
-            )
-        if self.subscribed(self.pub_contact_markers):
-            self.pub_contact_markers.publish(
-                convert.contact_markers(result.contacts, header, self.name)
-            )
-
-    def diagnostics(self) -> Any:
-        s = self.stats
-        if self._contact is not None and time.monotonic() - self._last_frame > 1.0:
-            self.end_contact()  # frames stopped during a contact (a replay, a driver stopped)
-        values: dict[str, object] = {
-            "bundle": str(self.bundle),
-            "frames": s.frames,
-            "solved": s.solved,
-            "constrained_solves": s.constrained,
-            "skipped_idle": s.skipped_idle,
-            "skipped_deflection": s.skipped_deflection,
-            "skipped_images": s.skipped_images,
-            "skipped_visualization": s.skipped_visualization,
-            "bad_frames": s.bad_frames,
-            "foreign_frames": s.foreign_frames,
-            "nonfinite_frames": s.nonfinite_frames,
-            "nonfinite_readings": s.nonfinite_readings,
-            "out_of_range_readings": s.out_of_range,
-            "unpublishable": s.unpublishable,
-            "internal_errors": s.internal_errors,
-            "contacts": s.contacts,
-            "contact_frames": s.contact_frames,
-            "peak_force_n": s.peak_force,
-            "bundle_reloads": self.reloads,
-            "bundle_problem": self.bundle_problem,
-            "noise_median_um": float(np.median(self.noise.sigma) * 1e6),
-            "noise_max_um": float(np.max(self.noise.sigma) * 1e6),
-            "noise_frames": self.noise.frames_used,
-            "false_alarm_bound_per_hour": self.recon.detector.per_hour
-            if self.recon.detector is not None
-            else 0.0,
-        }
-        # One percentile call per series (median and p99 together): at 24 patches the
-        # separate np.median/np.percentile calls cost 3 % of the node's time.
-        series = dict(s.stage_s)
-        if s.latency_s:
-            series["latency"] = s.latency_s
-        for stage, times in series.items():
-            if times:
-                median, p99 = np.percentile(np.fromiter(times, float, len(times)), (50, 99))
-                values[f"{stage}_median_ms"] = float(median * 1e3)
-                values[f"{stage}_p99_ms"] = float(p99 * 1e3)
-        level, message = OK, "ok"
-        faults = (
-            s.bad_frames,
-            s.foreign_frames,
-            s.nonfinite_frames,
-            s.unpublishable,
-            s.out_of_range,
-            s.internal_errors,
-        )
-        if any(faults):
-            level, message = WARN, s.last_error
-        if s.frames == 0:
-            level, message = WARN, "no taxel frames received yet"
-        if self.bundle_problem:
-            level = ERROR if "refused" in self.bundle_problem else max(level, WARN)
-            message = f"{self.bundle_problem}; {message}"
-        return diagnostic_status(
-            f"contact_reconstruction: {self.name}", level, message, values, self.name
-        )
 
 
 def load_reconstructor(path: Path, follow: bool = True) -> Reconstructor:
@@ -566,8 +132,37 @@ class ContactReconstructionNode(Node):
             self,
             "patches",
             STRING_ARRAY_EMPTY,
-            "patches to serve (empty: every bundle in bundles_dir); lets processes share a skin",
+            "patches to serve (empty: every bundle in bundles_dir, or of the layout); lets "
+            "processes share a skin (see also worker_index and worker_count)",
         )
+        self.input = declare_parameter(
+            self,
+            "input",
+            "patches",
+            "patches: each patch's <patch>/taxels (TaxelArray); batches: taxel_batches "
+            "(TaxelBatch, a bus's patches in one message: far less ROS work per frame)",
+            choices=("patches", "batches"),
+        )
+        worker_index = declare_parameter(
+            self,
+            "worker_index",
+            -1,
+            "this process's index among worker_count workers (-1: not a worker)",
+            int_range=(-1, 1023),
+        )
+        worker_count = declare_parameter(
+            self,
+            "worker_count",
+            0,
+            "workers sharing the patches (given by name, or those of the layout or bundles), "
+            "each serving its share balanced by taxels; 0: serve them all in this process",
+            int_range=(0, 1024),
+        )
+        if worker_count and not 0 <= worker_index < worker_count:
+            raise ValueError(
+                f"worker_index {worker_index} is not one of the {worker_count} workers "
+                f"(0..{worker_count - 1})"
+            )
         self.queue_depth = declare_parameter(
             self,
             "queue_depth",
@@ -607,10 +202,25 @@ class ContactReconstructionNode(Node):
             float_range=(0.05, 60.0),
         )
         log_parameters(self, PARAMETERS)
+        self._sim_time = bool(self.get_parameter("use_sim_time").value)
         self.load_errors: dict[str, str] = {}
         self.pipelines: dict[str, PatchPipeline] = {}
         self._refused: dict[Path, tuple] = {}  # bundle → signature of the refused version
         self._paths = self._bundle_paths(requested)
+        if worker_count:
+            mine = worker_patches(self._taxel_counts(), worker_index, worker_count)
+            self._paths = {name: path for name, path in self._paths.items() if name in mine}
+            self.get_logger().info(
+                f"worker {worker_index} of {worker_count}: patches {sorted(self._paths)}"
+            )
+        self.link = WorkerLink(
+            self,
+            list(self._paths),
+            worker_index,
+            worker_count,
+            lambda: sum(p.stats.frames for p in self.pipelines.values()),
+        )
+        self.batches = ContactBatches(self, self.input == "batches")
         for name, path in self._paths.items():
             sig = bundle_signature(path)
             try:
@@ -639,6 +249,30 @@ class ContactReconstructionNode(Node):
         self._diag_todo: list[str] = []
         self._diag_done: dict[str, Any] = {}
         self.create_timer(period / (len(self.pipelines) + 1), self.diagnostics_step)
+        if self.link.worker_mode:  # (a lone node's array stays what it always was)
+            self.create_timer(period, self._publish_worker_status)
+
+    def now_ns(self) -> int:
+        """Now [ns since the epoch]: the system clock read directly (rclpy's Clock.now()
+        builds objects: ≈ 20 µs a call here), the ROS clock with use_sim_time."""
+        if self._sim_time:
+            return self.get_clock().now().nanoseconds
+        return time.time_ns()
+
+    def _taxel_counts(self) -> dict[str, int]:
+        """Patch → taxels, for the split over workers: from the layout if given (the same
+        file on every machine), else from each bundle's manifest (1 if unreadable: the
+        worker given it reports why)."""
+        if self.layout:
+            layout = load_layout(self.layout)
+            return {p.name: len(p.taxel_ids()) for p in layout.patches if p.name in self._paths}
+        counts = {}
+        for name, path in self._paths.items():
+            try:
+                counts[name] = int(read_manifest(path)["arrays"]["taxel_ids"]["shape"][0]) or 1
+            except Exception:
+                counts[name] = 1
+        return counts
 
     def build_command(self) -> str:
         """The command that builds the bundles this node looks for."""
@@ -737,7 +371,7 @@ class ContactReconstructionNode(Node):
                 self.get_logger().error(
                     f"watching bundles: {type(exc).__name__}: {exc}", throttle_duration_sec=5.0
                 )
-            self._diag_todo = list(reversed(self.pipelines))
+            self._diag_todo = [n for n in reversed(self.pipelines) if self._reports(n)]
             if self._diag_todo:
                 return
         else:
@@ -747,8 +381,17 @@ class ContactReconstructionNode(Node):
             if self._diag_todo:
                 return
         self._publish_diagnostics(
-            [self._diag_done[n] for n in self.pipelines if n in self._diag_done]
+            [
+                self._diag_done[n]
+                for n in self.pipelines
+                if n in self._diag_done and self._reports(n)
+            ]
         )
+
+    def _reports(self, patch: str) -> bool:
+        """Whether this process reports the patch on /diagnostics: a worker only those it
+        serves (one left to another worker is that one's to report)."""
+        return not self.link.worker_mode or patch in self.link.serving
 
     def _publish_diagnostics(self, statuses: list[Any]) -> None:
         msg = DiagnosticArray()
@@ -758,7 +401,38 @@ class ContactReconstructionNode(Node):
             msg.status.append(
                 diagnostic_status(f"contact_reconstruction: {name}", ERROR, error, {}, name)
             )
-        self.pub_diag.publish(msg)
+        # (a timer: it may run while a Ctrl-C shuts the context down under it)
+        publish_while_up(self, self.pub_diag, msg)
+
+    def _publish_worker_status(self) -> None:
+        """The worker's own status, in an array of its own (timer, once a period)."""
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [self._worker_status()]
+        publish_while_up(self, self.pub_diag, msg)
+
+    def _worker_status(self) -> Any:
+        """This process as a worker: what it serves, what it left to others, batches."""
+        link = self.link
+        problem, text = link.status()
+        me = link.me
+        values: dict[str, object] = {
+            "worker": me.worker,
+            "index": me.index,
+            "count": me.count,
+            "input": self.input,
+            "patches": " ".join(sorted(link.serving)),
+            "yielded": " ".join(sorted(link.yielded)),
+            **self.batches.values(),
+            "cpu_time_s": time.process_time(),
+        }
+        served = f"serving {len(link.serving)} of {len(link.given)} patches"
+        level = WARN if problem or self.batches.bad_batches else OK
+        message = f"{served}; {text}" if text else served
+        if self.batches.last_error:
+            message += f"; last bad batch: {self.batches.last_error}"
+        name = f"contact_reconstruction: worker {me.worker}"
+        return diagnostic_status(name, level, message, values, me.worker)
 
 
 def main(args: list[str] | None = None) -> None:

@@ -1,0 +1,153 @@
+"""contact_reconstruction's batched input and output: one message in, one out, many patches.
+
+The middleware costs per message, not per patch (docs/bench/load.md: taking a message,
+turning it into Python objects, publishing one). So a worker takes a whole bus's new
+readings in one ``TaxelBatch`` (``taxel_batches``, raw bytes read by
+:mod:`tactile_contact.ros.cdr`), solves the patches of it that it serves, and publishes their
+summaries in one ``ContactArray`` (``contacts``, written as bytes). Per-patch
+``<patch>/contact`` and the images, markers and clouds go out only while something subscribes
+to them (PatchPipeline).
+
+Batches are taken from one topic for every bus: a worker needs no list of buses, and one
+that falls behind keeps the newest :data:`BATCH_DEPTH` batches (a patch's older frame in
+the queue is skipped once a newer one of it was solved).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+from tactile_contact.msg import ContactArray, TaxelBatch
+from tactile_contact.ros.cdr import CdrError, ContactRows, read_taxel_batch, write_contact_array
+from tactile_contact.ros.common import publish_while_up
+
+BATCHES_TOPIC = "taxel_batches"
+CONTACTS_TOPIC = "contacts"
+#: Batches kept while a solve runs: every bus's newest few (one topic carries all buses).
+BATCH_DEPTH = 16
+
+
+def add_row(rows: ContactRows, pipe: Any, stamp_ns: int, result: Any) -> None:
+    """Append one patch's summary (``result`` None: the frame failed; see /diagnostics)."""
+    rows.patches.append(pipe.name)
+    rows.frame_ids.append(pipe.frame_id)
+    rows.stamps_ns.append(stamp_ns)
+    if result is None:
+        rows.states.append(ContactArray.FAILED)
+        rows.total_force.append(0.0)
+        rows.cop_x.append(0.0)
+        rows.cop_y.append(0.0)
+        return
+    if not result.in_contact:
+        rows.states.append(ContactArray.IDLE)
+        rows.total_force.append(0.0)
+        rows.cop_x.append(0.0)
+        rows.cop_y.append(0.0)
+        return
+    held = getattr(result, "held", False) or result.solver == "held"
+    rows.states.append(ContactArray.HELD if held else ContactArray.CONTACT)
+    rows.total_force.append(float(result.total_force))
+    rows.cop_x.append(float(result.cop[0]))
+    rows.cop_y.append(float(result.cop[1]))
+    k = len(rows.patches) - 1
+    for c in result.contacts:
+        rows.force.append(float(c.force))
+        rows.center.append((float(c.center[0]), float(c.center[1]), 0.0))
+        rows.radius.append(float(c.radius))
+        rows.profile.append(str(c.profile))
+        rows.contact_patch.append(k)
+
+
+class ContactBatches:
+    """The ``contacts`` publisher and, with ``input: batches``, the ``taxel_batches`` input.
+
+    Args:
+        node: the ContactReconstructionNode (its ``pipelines``, ``link``, ``now_ns``).
+        batches: subscribe to ``taxel_batches`` (else frames come per patch, PatchPipeline).
+    """
+
+    def __init__(self, node: Node, batches: bool) -> None:
+        from tactile_contact.ros.patch_pipeline import OUTPUT_QOS, QUIET_EVENTS
+
+        self.node = node
+        self.pub = node.create_publisher(
+            ContactArray, CONTACTS_TOPIC, OUTPUT_QOS, event_callbacks=QUIET_EVENTS
+        )
+        self.batches = 0
+        self.bad_batches = 0
+        self.last_error = ""
+        self._newest: dict[str, int] = {}  # patch → stamp [ns] of its newest frame solved
+        if batches:
+            qos = QoSProfile(depth=BATCH_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
+            self.sub = node.create_subscription(
+                TaxelBatch, BATCHES_TOPIC, self.on_batch, qos, raw=True
+            )
+
+    def on_batch(self, data: bytes) -> None:
+        """One batch: each patch of it this worker serves, solved; one ContactArray out.
+        Never raises into the executor."""
+        try:
+            self._on_batch(data)
+        except Exception as exc:
+            if not self.node.context.ok():
+                return  # (a Ctrl-C shut the context down under this batch)
+            self.bad_batches += 1
+            self.last_error = f"{type(exc).__name__}: {exc}"
+            self.node.get_logger().error(
+                f"taxel batch: {self.last_error}; batch dropped", throttle_duration_sec=5.0
+            )
+
+    def _on_batch(self, data: bytes) -> None:
+        try:
+            view = read_taxel_batch(data)
+        except CdrError as exc:
+            self.bad_batches += 1
+            self.last_error = str(exc)
+            self.node.get_logger().error(
+                f"taxel batch: {exc}; batch dropped", throttle_duration_sec=5.0
+            )
+            return
+        self.batches += 1
+        node = self.node
+        pipelines, serving, newest = node.pipelines, node.link.serving, self._newest
+        rows = ContactRows()
+        off = view.offsets
+        for i, name in enumerate(view.patches):
+            pipe = pipelines.get(name)
+            if pipe is None or name not in serving:
+                continue  # another worker's patch
+            stamp = view.stamps_ns[i]
+            if stamp <= newest.get(name, -1):
+                continue  # a newer frame of it was solved already (out of a queue)
+            newest[name] = stamp
+            a, b = off[i], off[i + 1]
+            result = pipe.frame(
+                stamp, view.taxel_ids[a:b], view.delta_c[a:b], view.status[a:b], contact=False
+            )
+            add_row(rows, pipe, stamp, result)
+        if rows.patches:
+            self.publish(rows)
+
+    def publish(self, rows: ContactRows) -> None:
+        """Publish ``rows`` as one ContactArray, each patch's latency measured now."""
+        now = self.node.now_ns()
+        rows.latency = [(now - s) * 1e-9 for s in rows.stamps_ns]
+        for name, lat in zip(rows.patches, rows.latency, strict=True):
+            pipe = self.node.pipelines.get(name)
+            if pipe is not None and math.isfinite(lat):
+                pipe.stats.latency_s.append(lat)
+        try:
+            data = write_contact_array(max(rows.stamps_ns), self.node.link.me.worker, rows)
+        except ValueError as exc:  # (non-finite: each result was checked; never expected)
+            self.bad_batches += 1
+            self.last_error = str(exc)
+            return
+        publish_while_up(self.node, self.pub, data)
+
+    def values(self) -> dict[str, object]:
+        """Counters for /diagnostics."""
+        return {"batches": self.batches, "bad_batches": self.bad_batches}
