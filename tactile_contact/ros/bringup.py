@@ -7,7 +7,7 @@ connects the simulator to the driver, so the full pipeline runs with no hardware
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,12 +55,12 @@ def make_nodes(config: GraphConfig, context: Context) -> list[Node]:
     """
     common = {"context": context, "namespace": config.namespace}
     bus = {"interface": config.interface, "channel": config.channel}
+    # The layout tells the reconstruction which patches need a bundle: one without is an
+    # error it reports (and the summary below), not an empty contact topic.
+    recon = {"bundles_dir": str(Path(config.bundles_dir)), "layout": config.layout_path}
     nodes: list[Node] = [
         ContactReconstructionNode(
-            parameter_overrides=_overrides(
-                {"bundles_dir": str(Path(config.bundles_dir)), **config.reconstruction}
-            ),
-            **common,
+            parameter_overrides=_overrides({**recon, **config.reconstruction}), **common
         ),
         SkinDriver(
             parameter_overrides=_overrides({"layout": config.layout_path, **bus, **config.driver}),
@@ -99,3 +99,33 @@ def running_graph(
         executor.shutdown(timeout_sec=2.0)
         for node in reversed(nodes):
             node.destroy_node()
+
+
+def summarise(nodes: Iterable[Node]) -> tuple[list[str], list[str]]:
+    """What the graph's nodes did, as lines for the end of a run (frames, contacts, forces,
+    anything dropped), and what kept it from its job (no bus, a patch without a bundle, a
+    driver not running): an empty second list means nothing did."""
+    lines: list[str] = []
+    problems: list[str] = []
+    published: dict[str, int] = {}
+    for node in nodes:
+        if isinstance(node, SkinDriver):
+            lines += [f"skin_driver: {line}" for line in node.summary()]
+            published.update(node.published())
+            state = node.state_label()
+            if state != "active":
+                problems.append(f"skin_driver is {state}, not active (its log says why)")
+            elif not node.bus_opened:
+                problems.append(f"the CAN bus never opened: {node.bus_problem()}")
+    for node in nodes:
+        if isinstance(node, ContactReconstructionNode):
+            lines += [f"contact_reconstruction: {line}" for line in node.summary()]
+            for name, pipe in node.pipelines.items():
+                skipped = published.get(name, 0) - pipe.stats.frames
+                if skipped > 0:
+                    lines.append(
+                        f"contact_reconstruction: {name}: {skipped} of {published[name]} "
+                        "frames not taken (it keeps the newest when busy)"
+                    )
+            problems += [f"patch {name}: {error}" for name, error in node.load_errors.items()]
+    return lines, problems

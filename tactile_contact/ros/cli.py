@@ -4,7 +4,9 @@
     tactile-contact replay BAG [--rate R]          replay recorded taxels into a reconstruction node
     tactile-contact demo                           the end-to-end demo (``make demo``)
 
-Errors are printed as ``ERROR: …`` with exit status 1.
+Each run ends with a summary (frames, contacts and their peak force, anything dropped). Exit
+status 1, with ``ERROR: …`` lines, when the run could not do its job: bad arguments, no bus, a
+patch without a usable bundle, nothing replayed into a reconstruction.
 """
 
 from __future__ import annotations
@@ -14,6 +16,37 @@ import sys
 import threading
 import time
 from pathlib import Path
+
+
+def _seconds(text: str) -> float:
+    """An argparse type: a finite number of seconds ≥ 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not (value >= 0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"{text}: must be a finite number ≥ 0")
+    return value
+
+
+def _rate(text: str) -> float:
+    """An argparse type: a playback speed factor ≥ 0 (0: as fast as possible)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (value >= 0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"{text}: must be ≥ 0 (1: recorded pace, 0: at once)")
+    return value
+
+
+def _report(lines: list[str], problems: list[str]) -> int:
+    """Print the summary lines (stdout) and the problems as ERROR lines (stderr); exit status."""
+    for line in lines:
+        print(line)
+    for problem in problems:
+        print(f"ERROR: {problem}", file=sys.stderr)
+    return 1 if problems else 0
 
 
 def _add_graph_args(p: argparse.ArgumentParser) -> None:
@@ -27,7 +60,7 @@ def _bringup(args: argparse.Namespace) -> int:
     from rclpy.context import Context
 
     from tactile_contact.ros.bag import BagRecorder
-    from tactile_contact.ros.bringup import GraphConfig, running_graph
+    from tactile_contact.ros.bringup import GraphConfig, running_graph, summarise
     from tactile_contact.ros.topics import pipeline_topics
 
     config = GraphConfig(
@@ -43,24 +76,31 @@ def _bringup(args: argparse.Namespace) -> int:
     context = Context()
     rclpy.init(context=context)
     recorder = None
+    lines: list[str] = []
+    problems: list[str] = []
     try:
         with running_graph(config, context) as executor:
-            if args.record:
-                node = rclpy.create_node("tactile_contact_recorder", context=context)
-                executor.add_node(node)
-                topics = pipeline_topics(config.layout_path, tuple(args.record_topics))
-                recorder = BagRecorder(node, args.record, topics, storage=args.storage)
-            deadline = time.monotonic() + args.duration if args.duration > 0 else None
-            while context.ok() and (deadline is None or time.monotonic() < deadline):
-                executor.spin_once(timeout_sec=0.1)
+            try:
+                if args.record:
+                    node = rclpy.create_node("tactile_contact_recorder", context=context)
+                    executor.add_node(node)
+                    topics = pipeline_topics(config.layout_path, tuple(args.record_topics))
+                    recorder = BagRecorder(node, args.record, topics, storage=args.storage)
+                deadline = time.monotonic() + args.duration if args.duration > 0 else None
+                while context.ok() and (deadline is None or time.monotonic() < deadline):
+                    executor.spin_once(timeout_sec=0.1)
+            except KeyboardInterrupt:
+                pass
+            finally:  # (before the graph is destroyed: its nodes hold the counts)
+                lines, problems = summarise(executor.get_nodes())
     except KeyboardInterrupt:
         pass
     finally:
         if recorder is not None:
             recorder.close()
-            print(f"recorded {sum(recorder.counts.values())} messages to {args.record}")
+            lines.append(f"recorded {sum(recorder.counts.values())} messages to {args.record}")
         rclpy.try_shutdown(context=context)
-    return 0
+    return _report(lines, problems)
 
 
 def _replay(args: argparse.Namespace) -> int:
@@ -81,9 +121,13 @@ def _replay(args: argparse.Namespace) -> int:
             f"{args.bag}: no tactile_contact/msg/TaxelArray topic to replay into the "
             f"reconstruction; it holds {', '.join(held) or 'no message'}"
         )
+    # Patches by their taxel topics (<namespace>/<patch>/taxels).
+    patches = {t.rstrip("/").split("/")[-2]: t for t in taxels if t.count("/") >= 2}
     context = Context()
     rclpy.init(context=context)
     nodes = []
+    lines: list[str] = []
+    problems: list[str] = []
     try:
         # A replay must reconstruct every recorded frame, even when this machine is slower than
         # the one that recorded: a queue as deep as the bag (up to the 1000 the parameter allows)
@@ -96,6 +140,19 @@ def _replay(args: argparse.Namespace) -> int:
             ],
         )
         nodes.append(recon)
+        unserved = {p: e for p, e in recon.load_errors.items() if p in patches or p == "*"}
+        unserved.update(
+            {
+                p: f"no bundle in {args.bundles}; build it with {recon.build_command()}"
+                for p in patches
+                if p not in recon.pipelines and p not in unserved
+            }
+        )
+        if unserved:
+            # Nothing to replay into: the bag's frames would go out and come to nothing.
+            return _report(
+                recon.summary(), [f"patch {p}: {e}" for p, e in sorted(unserved.items())]
+            )
         player_node = rclpy.create_node("tactile_contact_player", context=context)
         nodes.append(player_node)
         # Only the taxel streams by default: the recorded summaries would mix with the node's own.
@@ -104,7 +161,18 @@ def _replay(args: argparse.Namespace) -> int:
         executor.add_node(recon)
         executor.add_node(player_node)
         thread = threading.Thread(target=player.play, daemon=True)
-        time.sleep(args.delay)  # let discovery match this process with other subscribers
+        # Every topic exists from here on: a `ros2 topic echo` (which needs a publisher to
+        # learn the type) or rviz2 started now matches before the first message.
+        outputs = ", ".join(
+            p.pub_contact.topic_name for p in recon.pipelines.values() if p.name in patches
+        )
+        print(
+            f"publishing {outputs} (ContactState); playing {args.bag} in {args.delay:g} s",
+            flush=True,
+        )
+        start = time.monotonic() + args.delay
+        while time.monotonic() < start:
+            executor.spin_once(timeout_sec=min(0.05, max(start - time.monotonic(), 0.0)))
         thread.start()
         while thread.is_alive():
             executor.spin_once(timeout_sec=0.05)
@@ -120,12 +188,22 @@ def _replay(args: argparse.Namespace) -> int:
                 seen, quiet_until = taken(), time.monotonic() + 1.0
         for _ in range(4):
             executor.spin_once(timeout_sec=0.05)
-        print(f"replayed {player.published} messages from {args.bag}")
+        for pipe in recon.pipelines.values():
+            pipe.end_contact()
+        lines = [f"replayed {player.published} messages from {args.bag}"]
+        lines += [f"contact_reconstruction: {line}" for line in recon.summary()]
+        if taken() == 0:
+            problems.append(
+                f"no frame of {args.bag} reached the reconstruction "
+                f"({player.published} messages published on {', '.join(taxels)})"
+            )
+        elif taken() < player.published:
+            lines.append(f"{player.published - taken()} frames not taken by the reconstruction")
     finally:
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown(context=context)
-    return 0
+    return _report(lines, problems)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -139,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--interface", default="", help="python-can interface (socketcan on robots)")
     b.add_argument("--channel", default="", help="CAN channel (can0 on robots)")
     b.add_argument("--scenario", default="sweep", choices=["sweep", "press", "idle"])
-    b.add_argument("--duration", type=float, default=0.0, help="seconds to run (0: until ^C)")
+    b.add_argument("--duration", type=_seconds, default=0.0, help="seconds to run (0: until ^C)")
     b.add_argument("--record", default="", help="record the pipeline's topics to this bag")
     b.add_argument(
         "--record-topics",
@@ -158,12 +236,15 @@ def main(argv: list[str] | None = None) -> int:
     r = sub.add_parser("replay", help="replay a bag's taxel arrays into a reconstruction node")
     r.add_argument("bag")
     r.add_argument("--bundles", default="bundles")
-    r.add_argument("--rate", type=float, default=1.0)
+    r.add_argument(
+        "--rate", type=_rate, default=1.0, help="playback speed (1: recorded pace, 0: at once)"
+    )
     r.add_argument(
         "--delay",
-        type=float,
+        type=_seconds,
         default=0.5,
-        help="seconds to wait before playing, for subscribers in other processes to match",
+        help="seconds to wait, once every topic exists (said on stdout), before playing: "
+        "time to start `ros2 topic echo` or rviz2 in another terminal",
     )
     r.add_argument(
         "--topics", nargs="*", default=[], help="topics to replay (default: the TaxelArray ones)"
