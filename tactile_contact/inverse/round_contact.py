@@ -212,6 +212,7 @@ def radial_responses(
     coords = (np.arange(n) - n // 2) * cell
     gx, gy = np.meshgrid(coords, coords, indexing="ij")
     centers = np.column_stack((gx.ravel(), gy.ravel()))
+    box = np.abs(centers).max(axis=1)  # (once: per profile it was a sixth of a build's time)
     hs = np.full(2, 0.5 * cell)
     dist = np.arange(round(reach / step) + 1) * step
     samples = []
@@ -227,7 +228,7 @@ def radial_responses(
             if FAMILIES[fi] == "punch"
             else HertzSphere.with_contact_radius(radius, 1.0, young, poisson)
         )
-        near = np.abs(centers).max(axis=1) <= radius + cell
+        near = box <= radius + cell
         p = np.zeros(len(centers))
         p[near] = shape.pressure_on_cells(centers[near], hs, 1.0, (0.0, 0.0), young, poisson)
         field = op.matvec(per_cell * p).reshape(n, n)
