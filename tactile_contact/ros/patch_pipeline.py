@@ -30,6 +30,7 @@ from visualization_msgs.msg import MarkerArray
 
 from tactile_contact.inverse.detection import NoiseTracker
 from tactile_contact.inverse.reconstruction import Reconstructor
+from tactile_contact.model.surface import Surface
 from tactile_contact.msg import ContactState, GridGeometry, TaxelArray
 from tactile_contact.ros import convert
 from tactile_contact.ros.cdr import ContactRows
@@ -202,6 +203,9 @@ class PatchPipeline:
     def use(self, recon: Reconstructor) -> None:
         """Serve with ``recon`` from now on (at start, and when the bundle was replaced)."""
         self.recon = recon
+        # Where the patch lies on the robot (an imported skin): its rviz2 outputs go there.
+        manifest = getattr(getattr(recon, "bundle", None), "manifest", {})
+        self.surface = Surface.from_dict(manifest.get("layout", {}).get("surface"))
         # Each taxel's noise, learnt from frames without contact; it sets the detection
         # threshold (tactile_contact.inverse.detection). Floor: the bare rounding of one count.
         self.noise = NoiseTracker(recon.default_noise / np.sqrt(2.0), start=recon.default_noise)
@@ -461,15 +465,18 @@ class PatchPipeline:
                     self.name,
                     radius=float(self.recon.params.get("taxel_radius", 2e-3)),
                     full_scale=self.node.taxel_full_scale,
+                    surface=self.surface,
                 )
             )
         if result.traction is not None and self.subscribed(self.pub_cloud):
             self.pub_cloud.publish(
-                convert.pressure_cloud(self.recon.traction_grid, result.traction, header)
+                convert.pressure_cloud(
+                    self.recon.traction_grid, result.traction, header, surface=self.surface
+                )
             )
         if self.subscribed(self.pub_contact_markers):
             self.pub_contact_markers.publish(
-                convert.contact_markers(result.contacts, header, self.name)
+                convert.contact_markers(result.contacts, header, self.name, self.surface)
             )
 
     def diagnostics(self) -> Any:
