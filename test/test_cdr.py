@@ -180,3 +180,30 @@ def test_what_cannot_be_a_message_is_refused_with_the_field_named() -> None:
     rows.latency = [1.0, 2.0]
     with pytest.raises(ValueError, match=r"1 patches and 0 contacts, but per-patch lengths"):
         write_contact_array(0, "w", rows)
+
+
+@given(batches())
+def test_a_taxel_batch_written_here_reads_in_rclpy(d: dict) -> None:
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    from tactile_contact.msg import TaxelBatch
+    from tactile_contact.ros.cdr import write_taxel_batch
+
+    cuts = list(zip(d["offsets"][:-1], d["offsets"][1:], strict=True))
+    data = write_taxel_batch(
+        d["stamp"][0] * 10**9 + d["stamp"][1],
+        d["bus"],
+        d["patches"],
+        d["frame_ids"],
+        [s * 10**9 + ns for s, ns in d["stamps"]],
+        *(
+            [np.asarray(d[key], dtype=dt)[a:b] for a, b in cuts]
+            for key, dt in (("ids", "u2"), ("delta_c", "f4"), ("raw", "u1"), ("status", "u1"))
+        ),
+    )
+    expected = _batch_message(d)
+    if not d["patches"]:
+        expected.offsets = array.array("I", [0])  # (written: [0]; rclpy's own may be [])
+    assert deserialize_message(data, TaxelBatch) == expected
+    # (not byte for byte: the rmw leaves its padding bytes as it found them)
+    assert len(data) == len(serialize_message(expected))

@@ -20,6 +20,7 @@ import subprocess
 import sys
 import threading
 import time
+import traceback
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -54,7 +55,8 @@ def thread_errors() -> Iterator[list[str]]:
     old = threading.excepthook
 
     def hook(args: threading.ExceptHookArgs) -> None:
-        caught.append(f"{args.thread.name if args.thread else '?'}: {args.exc_value!r}")
+        where = "".join(traceback.format_tb(args.exc_traceback)[-3:])
+        caught.append(f"{args.thread.name if args.thread else '?'}: {args.exc_value!r}\n{where}")
 
     threading.excepthook = hook
     try:
@@ -120,6 +122,7 @@ def _taxel_source(context: Any) -> tuple[Any, Any]:
 
     from tactile_contact.model.layout import load_layout
     from tactile_contact.msg import TaxelArray
+    from tactile_contact.ros.common import publish_while_up
 
     node = Node("taxel_source", context=context)
     pub = node.create_publisher(TaxelArray, "hexagon/taxels", 5)
@@ -131,7 +134,7 @@ def _taxel_source(context: Any) -> tuple[Any, Any]:
         msg.delta_c = (rng.normal(0.0, 1e-16, len(ids))).astype(np.float32).tolist()
         msg.status = [0] * len(ids)
         msg.header.stamp = node.get_clock().now().to_msg()
-        pub.publish(msg)
+        publish_while_up(node, pub, msg)  # (as the nodes' timers do: see the test below)
 
     node.create_timer(0.02, tick)
     return node, pub
@@ -371,3 +374,70 @@ def test_sigint_while_the_node_is_built_is_clean(name: str, how: str) -> None:
         assert bad not in text, f"{name}, {how}: {bad!r}\n{text[-3000:]}"
     left = [line for line in done.stdout.splitlines() if line.startswith("threads left:")]
     assert left == ["threads left: []"], text[-3000:]
+
+
+def _late_publisher(
+    node: Any, pub: Any, bare: bool, inside: threading.Event, down: threading.Event, done: list
+) -> Any:
+    """A timer callback that, the first time, waits until the context is down, then publishes
+    (bare: straight; else through publish_while_up, its result in ``done``)."""
+    from std_msgs.msg import String
+
+    from tactile_contact.ros.common import publish_while_up
+
+    def callback() -> None:
+        if inside.is_set():
+            return
+        inside.set()
+        down.wait(5.0)
+        if bare:
+            pub.publish(String(data="late"))  # raises: the context is gone
+        else:
+            done.append(publish_while_up(node, pub, String(data="late")))
+
+    return callback
+
+
+@pytest.mark.parametrize("executor_kind", ["events", "single"])
+def test_a_callback_that_publishes_while_the_context_is_shut_down_ends_the_spin_quietly(
+    executor_kind: str, capfd: pytest.CaptureFixture[str], thread_errors: list[str]
+) -> None:
+    """The race a loaded machine hit in the 20 start/stop cycles above: rclpy's SIGINT handler
+    shuts the context down (from another thread) while a callback runs; the callback's
+    publish then fails ("publisher's context is invalid", or InvalidHandle once the publisher
+    is destroyed). Made to happen every time here: the callback waits until the context is
+    down, then publishes, once through publish_while_up (the nodes' way: nothing raised) and
+    once bare (spin_until_shutdown: the spin ends as the shutdown does, nothing escapes)."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.experimental import EventsExecutor
+    from rclpy.node import Node
+    from std_msgs.msg import String
+
+    from tactile_contact.ros.common import spin_until_shutdown
+
+    for bare in (False, True):
+        context = Context()
+        rclpy.init(context=context)
+        node = Node("racer", context=context)
+        pub = node.create_publisher(String, "race", 5)
+        inside, down, done = threading.Event(), threading.Event(), []
+
+        # (built by a function: rclpy hands a TimerInfo to a callback that takes an argument)
+        callback = _late_publisher(node, pub, bare, inside, down, done)
+        node.create_timer(0.005, callback)
+        cls = EventsExecutor if executor_kind == "events" else SingleThreadedExecutor
+        executor = cls(context=context)
+        executor.add_node(node)
+        spinner = threading.Thread(target=spin_until_shutdown, args=(executor, context))
+        spinner.start()
+        assert inside.wait(5.0)
+        context.try_shutdown()
+        down.set()
+        spinner.join(5.0)
+        assert not spinner.is_alive()
+        executor.shutdown(timeout_sec=1.0)
+        node.destroy_node()
+        assert done == ([] if bare else [False])
+    assert not thread_errors, thread_errors

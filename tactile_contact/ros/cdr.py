@@ -309,3 +309,56 @@ def _put_strings(out: bytearray, items: Sequence[str]) -> None:
         out += _U32.pack(len(b) + 1)
         out += b
         out += b"\x00"
+
+
+def write_taxel_batch(
+    stamp_ns: int,
+    bus: str,
+    patches: Sequence[str],
+    frame_ids: Sequence[str],
+    stamps_ns: Sequence[int],
+    taxel_ids: Sequence[NDArray],
+    delta_c: Sequence[NDArray],
+    raw: Sequence[NDArray],
+    status: Sequence[NDArray],
+) -> bytes:
+    """A ``tactile_contact/TaxelBatch`` as serialized bytes, from per-patch arrays (header
+    frame_id empty; the arrays are concatenated, the offsets made from their lengths).
+
+    Raises:
+        ValueError: the per-patch sequences differ in length, or a patch's arrays do.
+    """
+    n = len(patches)
+    if not (len(frame_ids) == len(stamps_ns) == len(taxel_ids) == n):
+        raise ValueError(
+            f"TaxelBatch: {n} patches but {len(frame_ids)} frame_ids, {len(stamps_ns)} stamps, "
+            f"{len(taxel_ids)} taxel arrays"
+        )
+    sizes = [len(a) for a in taxel_ids]
+    for name, arrays in (("delta_c", delta_c), ("raw", raw), ("status", status)):
+        if [len(a) for a in arrays] != sizes:
+            raise ValueError(f"TaxelBatch: {name} lengths {[len(a) for a in arrays]} != {sizes}")
+    offsets = [0]
+    for k in sizes:
+        offsets.append(offsets[-1] + k)
+    out = bytearray(_HEADER_LE)
+    out += _TIME.pack(*divmod(stamp_ns, 1_000_000_000))
+    _put_strings(out, ("", bus))  # header.frame_id, bus
+    for items in (patches, frame_ids):
+        out += b"\x00" * (-len(out) % 4)
+        out += _U32.pack(len(items))
+        _put_strings(out, items)
+    out += b"\x00" * (-len(out) % 4)
+    flat = [x for t in stamps_ns for x in divmod(t, 1_000_000_000)]
+    out += struct.pack(f"<I{len(flat)}i", n, *flat)
+    out += struct.pack(f"<I{len(offsets)}I", len(offsets), *offsets)
+    k = offsets[-1]
+    for arrays, dtype in ((taxel_ids, "<u2"), (delta_c, "<f4"), (raw, "u1"), (status, "u1")):
+        out += b"\x00" * (-len(out) % 4)
+        out += _U32.pack(k)
+        for a in arrays:
+            if isinstance(a, (bytes, bytearray)) and dtype == "u1":
+                out += a  # (the driver's raw values and flags: bytes already)
+            else:
+                out += np.ascontiguousarray(a, dtype=dtype).tobytes()
+    return bytes(out)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import array
 import errno
+import math
 import threading
 import time
 from pathlib import Path
@@ -56,10 +57,14 @@ from tactile_contact.canbus.stream import (
     open_bus,
 )
 from tactile_contact.model.layout import load_layout
-from tactile_contact.msg import TaxelArray
+from tactile_contact.msg import TaxelArray, TaxelBatch
 from tactile_contact.ros import common as cm
+from tactile_contact.ros.cdr import write_taxel_batch
 
 WARN_THROTTLE_S = 5.0
+#: Subscribers of the per-patch <patch>/taxels are counted this often [s].
+SUBSCRIBERS_RECOUNT_S = 0.2
+BATCHES_TOPIC = "taxel_batches"
 #: State changes are published on /diagnostics at once, but at most this often [s].
 EVENT_DIAG_MIN_S = 0.1
 SUCCESS = TransitionCallbackReturn.SUCCESS
@@ -108,7 +113,13 @@ def default_layout_path() -> Path:
 PARAMETERS: tuple[tuple[str, Any, str, dict[str, Any]], ...] = (
     ("autostart", True, "configure and activate at start (no lifecycle manager needed)", {}),
     ("layout", "", "patch layout YAML; empty = the package's config/hexagon_patch.yaml", {}),
-    ("patches", cm.STRING_ARRAY_EMPTY, "patches to publish; empty = all of the layout", {}),
+    ("patches", cm.STRING_ARRAY_EMPTY, "patches to publish; empty = all of the layout "
+     "(of its bus)", {}),
+    ("bus", "", "the layout bus this driver serves (its patches); empty = the layout's only "
+     "bus", {}),
+    ("batch_window_ms", 2.0, "taxel_batches: the readings completed within this long of the "
+     "first one not yet published go out in one TaxelBatch (sooner once every patch has one); "
+     "0 = each receive's at once", {"unit": "ms", "float_range": (0.0, 100.0)}),
     ("interface", "socketcan", "python-can interface (socketcan, virtual, ...)", {}),
     ("channel", "can0", "python-can channel", {}),
     ("bitrate", 1_000_000, "bit rate for interfaces that set it; 0 = leave as is",
@@ -176,6 +187,40 @@ PARAMETERS: tuple[tuple[str, Any, str, dict[str, Any]], ...] = (
 # fmt: on
 
 
+class Batcher:
+    """Readings of a bus gathered into batches (one TaxelBatch each).
+
+    A batch opens with the first reading not yet published and is due ``window_s`` later, or
+    as soon as every patch has a reading in it; a second reading of a patch already in it
+    sends the batch first (a batch holds one reading per patch).
+    """
+
+    def __init__(self, names: list[str], window_s: float) -> None:
+        self.names = frozenset(names)
+        self.window_s = window_s
+        self.pending: dict[str, PatchFrame] = {}
+        self.due = math.inf  # monotonic time the open batch goes out
+
+    def add(self, frame: PatchFrame, now: float) -> list[list[PatchFrame]]:
+        """Add a reading; the batches that are due because of it (0, 1 or 2)."""
+        out = []
+        if frame.patch in self.pending:
+            out.append(self.take())
+        if not self.pending:
+            self.due = now + self.window_s
+        self.pending[frame.patch] = frame
+        if len(self.pending) == len(self.names) or self.window_s <= 0.0:
+            out.append(self.take())
+        return out
+
+    def take(self) -> list[PatchFrame]:
+        """The open batch (emptied)."""
+        frames = list(self.pending.values())
+        self.pending.clear()
+        self.due = math.inf
+        return frames
+
+
 class SkinDriver(LifecycleNode):
     """The ``skin_driver`` lifecycle node (see the module docstring).
 
@@ -203,6 +248,12 @@ class SkinDriver(LifecycleNode):
         self._bus_opened = False  # the bus was open at least once
         self._config_sent = False
         self._pubs: dict[str, Publisher] = {}
+        self._batch_pub: Publisher | None = None
+        self._batcher: Batcher | None = None
+        self._subscribed: dict[str, bool] = {}  # patch → <patch>/taxels has a subscriber
+        self._ids_u16_cache: dict[str, np.ndarray] = {}
+        self._published_patch_messages = 0  # <patch>/taxels sent (only while subscribed)
+        self._subscribed_at = -1.0  # monotonic time they were counted
         self._diag_pub: Publisher | None = None
         self._diag_timer: Timer | None = None
         self._tare_srv: Any = None
@@ -246,8 +297,20 @@ class SkinDriver(LifecycleNode):
         self._params = p
         layout_path = Path(p["layout"]) if p["layout"] else default_layout_path()
         layout = load_layout(layout_path)  # LayoutError names file, key and problem
-        wanted = p["patches"] or [pl.name for pl in layout.patches]
+        buses = layout.buses()
+        if p["bus"] and p["bus"] not in buses:
+            raise ValueError(f"{layout_path}: no patch on bus {p['bus']!r} (buses: {buses})")
+        if not p["bus"] and len(buses) > 1:
+            raise ValueError(
+                f"{layout_path}: patches on {len(buses)} buses {list(buses)}: one driver serves "
+                "one bus (set its bus parameter; the launch file starts one per bus)"
+            )
+        on_bus = [pl.name for pl in layout.patches if pl.bus == (p["bus"] or buses[0])]
+        wanted = p["patches"] or on_bus
         patches = [layout.patch(name) for name in wanted]  # KeyError lists the known names
+        elsewhere = [pl.name for pl in patches if pl.name not in on_bus]
+        if elsewhere:
+            raise ValueError(f"{layout_path}: patches {elsewhere} are not on bus {p['bus']!r}")
         config = BaselineConfig(
             calibration_samples=p["calibration_samples"],
             drift_time_constant_s=p["drift_time_constant_s"],
@@ -301,6 +364,8 @@ class SkinDriver(LifecycleNode):
             self._pubs[pl.name] = self.create_lifecycle_publisher(
                 TaxelArray, f"{pl.name}/taxels", cm.SENSOR_QOS
             )
+        self._batch_pub = self.create_lifecycle_publisher(TaxelBatch, BATCHES_TOPIC, cm.SENSOR_QOS)
+        self._batcher = Batcher([pl.name for pl in patches], p["batch_window_ms"] * 1e-3)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", cm.DIAGNOSTICS_QOS)
         self._diag_timer = self.create_timer(p["diagnostics_period_s"], self._publish_diagnostics)
         self._tare_srv = self.create_service(Trigger, "~/tare", self._on_tare)
@@ -439,6 +504,10 @@ class SkinDriver(LifecycleNode):
         for pub in self._pubs.values():
             self.destroy_lifecycle_publisher(pub)
         self._pubs.clear()
+        if self._batch_pub is not None:
+            self.destroy_lifecycle_publisher(self._batch_pub)
+            self._batch_pub = None
+        self._ids_u16_cache.clear()  # (a new configuration may load another layout)
         if self._diag_timer is not None:
             self.destroy_timer(self._diag_timer)
             self._diag_timer = None
@@ -496,8 +565,12 @@ class SkinDriver(LifecycleNode):
         if bus is None:
             self._reopen()
             return
+        timeout = p["receive_timeout_s"]
+        batcher = self._batcher
+        if batcher is not None and batcher.pending:
+            timeout = min(timeout, max(0.0, batcher.due - time.monotonic()))
         try:
-            msg = bus.recv(p["receive_timeout_s"])
+            msg = bus.recv(timeout)
         except (can.CanError, OSError, ValueError) as exc:
             # OSError: a socketcan interface down (ENETDOWN) or removed (ENODEV); CanError:
             # python-can's own (a closed bus, an adapter unplugged); ValueError: a backend
@@ -533,8 +606,7 @@ class SkinDriver(LifecycleNode):
             out += stream.poll(now)
             events, stream.events = stream.events, []
             bus_off = stream.controller.bus_off_since
-        for frame in out:
-            self._publish(frame)
+        self._publish(out)
         if stream.last_error is not None:
             # (checked here: rclpy's own throttle inspects the call stack on every call)
             if self._due("rejected"):
@@ -626,9 +698,64 @@ class SkinDriver(LifecycleNode):
             self._send_config()
         self._publish_diagnostics(window=False)
 
-    def _publish(self, f: PatchFrame) -> None:
+    def _publish(self, frames: list[PatchFrame]) -> None:
+        """The readings completed: into the batch (published when due), and each patch's
+        TaxelArray while something subscribes to its topic."""
+        if not self.context.ok():
+            return
+        now = time.monotonic()
+        if now - self._subscribed_at > SUBSCRIBERS_RECOUNT_S:
+            # (an rmw query per topic: counted a few times a second, not per frame)
+            self._subscribed = {n: p.get_subscription_count() > 0 for n, p in self._pubs.items()}
+            self._subscribed_at = now
+        for f in frames:
+            if self._subscribed.get(f.patch):
+                self._publish_patch(f)
+                self._published_patch_messages += 1
+        batcher = self._batcher
+        if batcher is None or self._batch_pub is None:
+            return
+        for f in frames:
+            if f.patch in batcher.names:
+                for batch in batcher.add(f, now):
+                    self._publish_batch(batch)
+        if batcher.pending and now >= batcher.due:
+            self._publish_batch(batcher.take())
+
+    def _publish_batch(self, frames: list[PatchFrame]) -> None:
+        """One TaxelBatch of ``frames`` (serialized here: rclpy's message objects cost more
+        than the rest of the publication, docs/bench/load.md)."""
+        pub = self._batch_pub
+        if not frames or pub is None:
+            return
+        if self._params["stamp_source"] == "can":
+            stamps = [round(max(f.stamp, 0.0) * 1e9) for f in frames]
+        else:
+            stamps = [self.get_clock().now().nanoseconds] * len(frames)
+        data = write_taxel_batch(
+            time.time_ns(),
+            self._params["bus"],
+            [f.patch for f in frames],
+            [f.frame_id for f in frames],
+            stamps,
+            [self._ids_u16(f) for f in frames],
+            [f.delta_c for f in frames],
+            [f.raw for f in frames],
+            [f.status for f in frames],
+        )
+        pub.publish(data)
+
+    def _ids_u16(self, f: PatchFrame) -> np.ndarray:
+        """The patch's taxel ids as uint16 (made once per patch: a list converted per frame
+        cost more than the rest of the batch)."""
+        ids = self._ids_u16_cache.get(f.patch)
+        if ids is None or len(ids) != len(f.taxel_ids):
+            ids = self._ids_u16_cache[f.patch] = np.asarray(f.taxel_ids, dtype=np.uint16)
+        return ids
+
+    def _publish_patch(self, f: PatchFrame) -> None:
         pub = self._pubs.get(f.patch)
-        if pub is None or not self.context.ok():
+        if pub is None:
             return
         msg = TaxelArray(patch=f.patch)
         msg.header.frame_id = f.frame_id

@@ -1,0 +1,226 @@
+"""skin_driver's batches: a bus's readings in one TaxelBatch, per-patch topics on demand.
+
+The Batcher is checked alone (when a batch goes out); then the real node on a python-can
+virtual bus, fed two patches' frames by the simulator (a smooth analytic bump, as in
+test_driver_node: the driver is under test, not the physics): every reading appears in
+exactly one batch, the batches carry what the per-patch TaxelArray carries for the same
+reading, and no TaxelArray is published before something subscribes to it.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+import pytest
+
+from tactile_contact.model.layout import load_layout
+from tactile_contact.model.sensor import SensorParams
+from tactile_contact.sim.simulator import SkinSimulator
+from test.rosutil import spin_until
+
+ROOT = Path(__file__).resolve().parents[1]
+LAYOUT = ROOT / "config" / "robot_skin.yaml"  # forearm (board 0) and palm (boards 1, 2)
+PERIOD_S = 0.02
+
+
+def _frame(patch: str) -> Any:
+    from tactile_contact.canbus.stream import PatchFrame
+
+    return PatchFrame(patch, f"f_{patch}", 1.0, [1, 2], np.zeros(2, np.float32), b"\0\0", b"\0\0")
+
+
+def test_a_batch_goes_out_when_every_patch_has_a_reading_or_its_window_ends() -> None:
+    from tactile_contact.ros.skin_driver import Batcher
+
+    b = Batcher(["a", "b", "c"], window_s=0.002)
+    assert b.add(_frame("a"), now=10.0) == [] and b.due == pytest.approx(10.002)
+    assert b.add(_frame("b"), now=10.001) == []  # the window runs from the first reading
+    assert b.due == pytest.approx(10.002)
+    out = b.add(_frame("c"), now=10.0015)  # every patch: at once
+    assert [[f.patch for f in batch] for batch in out] == [["a", "b", "c"]]
+    assert not b.pending and b.due == float("inf")
+    b.add(_frame("a"), now=11.0)
+    out = b.add(_frame("a"), now=11.001)  # a second reading of a: the first goes out first
+    assert [[f.patch for f in batch] for batch in out] == [["a"]]
+    assert list(b.pending) == ["a"] and b.due == pytest.approx(11.003)
+    assert [f.patch for f in b.take()] == ["a"]
+    now = Batcher(["a", "b"], window_s=0.0)  # no window: each reading at once
+    assert [[f.patch for f in batch] for batch in now.add(_frame("b"), now=1.0)] == [["b"]]
+
+
+class _Bump:
+    """Compression [m] = 200 µm · exp(−r²/2σ²), σ = 5 mm, around the patch's first taxel."""
+
+    def __init__(self, xy: np.ndarray) -> None:
+        self.xy = xy
+
+    def compression(self, indenter: Any, force: float, center_xy: Any) -> np.ndarray:
+        r2 = np.sum((self.xy - np.asarray(center_xy)) ** 2, axis=1)
+        return force * 200e-6 * np.exp(-r2 / (2 * 0.005**2))
+
+
+def _simulator(patch: Any, seed: int) -> SkinSimulator:
+    el, se = patch.elastomer, patch.sensor
+    sensor = SensorParams(
+        thickness=el.thickness,
+        epsilon_r=se.epsilon_r,
+        area=se.area,
+        farad_per_count=se.farad_per_count,
+        shift=se.shift,
+        no_load=se.no_load,
+    )
+    return SkinSimulator(
+        [(m.board, m.triangle) for m in patch.modules],
+        _Bump(patch.channel_xy()),
+        sensor=sensor,
+        taxel_mask=patch.valid_mask(),
+        noise_cdc=1.0,
+        period_s=PERIOD_S,
+        seed=seed,
+    )
+
+
+@pytest.mark.ros
+def test_every_reading_is_in_one_batch_and_taxel_arrays_only_for_subscribers(
+    ros_context: object,
+) -> None:
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from tactile_contact.msg import TaxelArray, TaxelBatch
+    from tactile_contact.ros.cdr import read_taxel_batch
+    from tactile_contact.ros.common import SENSOR_QOS
+    from tactile_contact.ros.skin_driver import SkinDriver
+    from tactile_contact.sim.simulator import Indentation
+
+    channel = "driver_batches"
+    params = {"interface": "virtual", "channel": channel, "layout": str(LAYOUT)}
+    params |= {"period_ms": 20, "calibration_samples": 2, "batch_window_ms": 5.0}
+    node = SkinDriver(
+        context=ros_context, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]
+    )
+    listener = Node("batch_listener", context=ros_context)
+    batches: list[Any] = []
+    listener.create_subscription(
+        TaxelBatch,
+        "taxel_batches",
+        lambda data: batches.append(read_taxel_batch(data)),
+        SENSOR_QOS,
+        raw=True,
+    )
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    executor.add_node(listener)
+    layout = load_layout(LAYOUT)
+    sims = {p.name: _simulator(p, k) for k, p in enumerate(layout.patches)}
+    touch = {
+        p.name: Indentation.press(None, 1.0, tuple(p.taxel_xy()[0]), start_s=0.2, ramp_s=0.1)
+        for p in layout.patches
+    }
+    bus = can.Bus(interface="virtual", channel=channel)
+    stop = threading.Event()
+    sent = {name: 0 for name in sims}
+
+    def send() -> None:
+        # both patches' frames of a period together, as a board sends its triangles
+        k = 0
+        t0 = time.monotonic()
+        while not stop.is_set():
+            for name, sim in sims.items():
+                for m in sim.period(touch[name], k * PERIOD_S).messages:
+                    bus.send(m)
+                sent[name] += 1
+            k += 1
+            stop.wait(max(0.0, t0 + k * PERIOD_S - time.monotonic()))
+
+    sender = threading.Thread(target=send, daemon=True)
+    try:
+        assert spin_until(
+            executor, lambda: listener.count_publishers("taxel_batches") > 0, timeout_s=10.0
+        )
+        sender.start()
+        assert spin_until(executor, lambda: len(batches) >= 40, timeout_s=20.0)
+        # 1. every reading once: no patch twice in a batch, and per patch one reading a period
+        sizes = {p.name: 12 * len(p.modules) for p in layout.patches}
+        for b in batches:
+            assert len(set(b.patches)) == len(b.patches)
+            assert np.diff(b.offsets).tolist() == [sizes[name] for name in b.patches]
+        stamps: dict[str, list[int]] = {name: [] for name in sims}
+        for b in batches:
+            for name, stamp in zip(b.patches, b.stamps_ns, strict=True):
+                stamps[name].append(stamp)
+        for name, got in stamps.items():
+            assert got == sorted(set(got)), f"{name}: a reading repeated or out of order"
+        together = sum(len(b.patches) == 2 for b in batches)
+        assert together >= 0.8 * len(batches), "the two patches' readings travel together"
+        # 2. no TaxelArray while nobody subscribes
+        assert node._published_patch_messages == 0
+        arrays: list[Any] = []
+        listener.create_subscription(TaxelArray, "palm/taxels", arrays.append, SENSOR_QOS)
+        n = len(batches)
+        assert spin_until(executor, lambda: len(arrays) >= 10, timeout_s=10.0)
+        assert node._published_patch_messages >= 10
+        # 3. a TaxelArray and the batch of the same reading carry the same values
+        spin_until(executor, lambda: len(batches) > n + 20, timeout_s=5.0)
+        by_stamp = {}
+        for b in batches:
+            for i, name in enumerate(b.patches):
+                if name == "palm":
+                    a, c = b.offsets[i], b.offsets[i + 1]
+                    by_stamp[b.stamps_ns[i]] = (b.taxel_ids[a:c], b.delta_c[a:c], b.status[a:c])
+        matched = 0
+        for m in arrays:
+            key = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+            if key in by_stamp:
+                ids, dc, st = by_stamp[key]
+                assert list(m.taxel_ids) == ids.tolist()
+                assert list(m.delta_c) == dc.tolist()
+                assert list(m.status) == st.tolist()
+                matched += 1
+        assert matched >= 5
+    finally:
+        stop.set()
+        if sender.is_alive():
+            sender.join(2.0)
+        executor.shutdown()
+        node.destroy_node()
+        listener.destroy_node()
+        bus.shutdown()
+
+
+@pytest.mark.ros
+def test_a_layout_on_several_buses_needs_the_bus_named(ros_context: object, tmp_path: Path) -> None:
+    """One driver serves one bus: a layout with several is refused at configure unless its
+    bus is named, and then it serves that bus's patches only."""
+    import yaml
+    from rclpy.parameter import Parameter
+
+    from tactile_contact.ros.skin_driver import SkinDriver
+
+    doc = yaml.safe_load(LAYOUT.read_text())
+    doc["patches"][0]["bus"] = "can0"
+    doc["patches"][1]["bus"] = "can1"
+    doc["patches"][1]["modules"][0]["board"] = 0  # the same address as on can0: allowed
+    path = tmp_path / "two_buses.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    assert load_layout(path).buses() == ("can0", "can1")
+
+    def driver(**extra: object) -> Any:
+        params = {"interface": "virtual", "channel": "two_buses", "layout": str(path), **extra}
+        return SkinDriver(
+            context=ros_context,
+            parameter_overrides=[Parameter(k, value=v) for k, v in params.items()],
+        )
+
+    refused = driver()
+    assert refused._stream is None  # configure failed (logged: set its bus parameter)
+    refused.destroy_node()
+    served = driver(bus="can1")
+    assert served._stream is not None and list(served._pubs) == ["palm"]
+    served.destroy_node()
