@@ -507,3 +507,12 @@ def test_shipped_parts_meet_the_flattening_targets(name):
     )  # fmt: skip
     for f in r.report.patches:
         assert f.median <= 1.5e-3 and f.p95 <= 4e-3, f
+
+
+def test_bus_names_the_patches_can_bus(tmp_path, capsys):
+    r = import_part(*HAND, bus="left_arm_can1")
+    assert [p.bus for p in r.layout.patches] == ["left_arm_can1"]
+    out = tmp_path / "hand.yaml"
+    assert main([*map(str, HAND), "-o", str(out), "--bus", "left arm"]) == 1
+    assert "bus: expected a name of letters, digits" in capsys.readouterr().err
+    assert not out.exists()

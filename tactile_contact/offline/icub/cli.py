@@ -4,7 +4,7 @@ Usage::
 
     tactile-contact-import-icub PART.ini POSITIONS.txt -o LAYOUT.yaml [--boards A,B,...]
         [--skin-spec SPEC.xml] [--robot-skin SKIN.xml --wrapper WRAPPER.xml [--port NAME]]
-        [--link FRAME] [--name NAME] [--split auto|part|board] [--force] [--quiet]
+        [--link FRAME] [--name NAME] [--bus BUS] [--split auto|part|board] [--force] [--quiet]
 
 Prints what it read, every anomaly it absorbed (with slot and rows), where each module's
 placement came from and, per patch, the fitted surface and the flattening's neighbour-distance
@@ -60,6 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--port", help="wrapper port of the part (default: the .ini's robotPart)")
     ap.add_argument("--link", help="link frame of the positions (default: the file's name line)")
     ap.add_argument("--name", help="patch name (default: the .ini's robotPart)")
+    ap.add_argument("--bus", default="", help="the CAN bus of the part's patches (layout 'bus')")
     ap.add_argument(
         "--split",
         choices=SPLITS,
@@ -88,6 +89,7 @@ def main(argv: list[str] | None = None) -> int:
             port=args.port,
             link=args.link,
             name=args.name,
+            bus=args.bus,
             split=args.split,
             command=command,
         )

@@ -199,6 +199,7 @@ def import_part(
     port: str | None = None,
     link: str | None = None,
     name: str | None = None,
+    bus: str = "",
     split: str = "auto",
     command: str = "",
 ) -> ImportResult:
@@ -212,6 +213,7 @@ def import_part(
             addresses of the wrapper port ``port`` (default: the .ini's robotPart).
         link: the robot link frame of the positions (default: the positions file's ``name``).
         name: patch name stem (default: the .ini's robotPart).
+        bus: the CAN bus of the part's patches (the layout's ``bus``; "" leaves it out).
         split: ``auto``, ``part`` or ``board``.
         command: the command line, recorded in the YAML's header.
 
@@ -219,6 +221,8 @@ def import_part(
         IcubFileError: a file is unreadable or inconsistent (file and line named).
         ValueError: the files are consistent but cannot be imported as asked.
     """
+    if bus and not re.fullmatch(r"[A-Za-z0-9_-]+", bus):
+        raise ValueError(f"bus: expected a name of letters, digits, '_' or '-', got {bus!r}")
     if split not in SPLITS:
         raise ValueError(f"split must be one of {', '.join(SPLITS)}, got {split!r}")
     report = ImportReport()
@@ -290,6 +294,7 @@ def import_part(
         d = {
             "name": patch.name,
             "frame_id": f"{patch.name}_skin",
+            **({"bus": bus} if bus else {}),
             "surface": surface.to_dict(),
             "modules": mods,
             "elastomer": PATCH_DEFAULTS["elastomer"],
@@ -305,6 +310,7 @@ def import_part(
             f"p95 {f.p95 * 1e3:.2f}, worst {f.worst * 1e3:.2f} mm",
             f"  - name: {d['name']}",
             f"    frame_id: {d['frame_id']}",
+            *([f"    bus: {bus}"] if bus else []),
             f"    surface: {_flow(d['surface'])}",
             "    modules:",
             *lines,
