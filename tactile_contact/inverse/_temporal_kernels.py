@@ -16,27 +16,32 @@ import numpy as np
 
 _JIT = {"cache": True, "nogil": True}
 
-#: Median of χ²₁ (a squared standard normal): the robust scale is median(u²) over this.
-CHI2_1_MEDIAN = 0.45493642311957305
+#: The robust scale: the mean of the smallest TRIM share of the squared residuals, over that
+#: mean for a standard normal (E[Z²; |Z| < z₀.₉₅]/0.9). Not the median: on whole-count
+#: readings the squared residuals take a few values, and their median read 0.2–1.4 × the true
+#: variance at 0.5-count noise, this 0.96–1.09.
+TRIM = 0.9
+TRIMMED_CHI2_1 = 0.623015484134684
 
 # Slots of the state vector shared with temporal.FrameFusion.
-N, HEAD, SCALE2, SCALE_FLOOR, SCALE_SEEN, SCALE_MEMORY = range(6)
-STATE_SIZE = 6
+N, HEAD, SCALE2, SCALE_FLOOR, SCALE_SEEN, SCALE_MEMORY, SCALE_PRIOR = range(7)
+STATE_SIZE = 7
 
 
 @numba.njit(**_JIT)
 def held_step(
-    d, ok, sigma, buf, total, state, nbr, local_limit, q, limits
+    d, ok, window_ok, sigma, buf, total, state, nbr, local_limit, q, limits
 ):  # pragma: no cover - compiled
     """Test one frame against the held window and add it when nothing changed.
 
     Args:
         d: (K,) readings [m] (0 where not ``ok``).
-        ok: (K,) taxels of the window (the frame's valid taxels are the same).
+        ok: (K,) the frame's valid taxels; window_ok: (K,) the window's.
         sigma: (K,) noise of one frame [m].
         buf: (H, K) ring buffer of the window's frames; total: (K,) their sum.
-        state: float64 vector (slots above): frames in the window, next ring row, noise scale²
-            (its floor, frames it learnt from, its memory).
+        state: float64 vector (slots above): frames in the window, next ring row, the scale²
+            of the frame-to-frame scatter against sigma (the floor the tests use, frames it
+            learnt from, its memory, the frames its starting value counts for).
         nbr: (K, W) each taxel's neighbourhood (indices; K pads); local_limit: (K,) χ²
             limits of the neighbourhood sums.
         q: (K, m) orthonormal whitened directions of the last result's parameters (m may be 0).
@@ -44,7 +49,8 @@ def held_step(
 
     Returns:
         0: unchanged, the frame added; 1: the whole frame changed; 2: a neighbourhood changed;
-        3: the projection on the result's parameters changed (nothing added for 1–3).
+        3: the projection on the result's parameters changed; 4: the frame's valid taxels
+        are not the window's (nothing added for 1–4).
     """
     k = d.shape[0]
     n = state[N]
@@ -54,19 +60,23 @@ def held_step(
     m = 0
     whole = 0.0
     for i in range(k):
+        if ok[i] != window_ok[i]:
+            return 4
         if ok[i]:
             r = (d[i] - total[i] / n) / (sigma[i] * spread)
             u[i] = r
             u2[m] = r * r
             whole += r * r
             m += 1
-    # The noise scale learns from every frame, robustly (a moving contact changes a few
-    # taxels; the median stays that of the others), faster while it has seen few frames.
+    # How much of sigma changes from frame to frame (scale² of the scatter about the mean),
+    # learnt from every frame, robustly (a moving contact changes a few taxels; the trimmed
+    # mean leaves them out), faster while it has seen few frames.
     seen = state[SCALE_SEEN] + 1.0
     state[SCALE_SEEN] = seen
-    rate = max(1.0 / seen, 1.0 / state[SCALE_MEMORY])
+    rate = max(1.0 / (seen + state[SCALE_PRIOR]), 1.0 / state[SCALE_MEMORY])
     if m > 0:
-        robust = np.median(u2[:m]) / CHI2_1_MEDIAN
+        low = np.sort(u2[:m])[: max(int(TRIM * m), 1)]
+        robust = low.mean() / TRIMMED_CHI2_1
         state[SCALE2] += rate * (robust - state[SCALE2])
     scale2 = max(state[SCALE2], state[SCALE_FLOOR])
     if whole > limits[0] * scale2:

@@ -3,15 +3,23 @@
 A press lasts many frames, and one 8-bit frame is near its information limit (one count is
 ≈ 10 µm of compression; a 1 N press's force information sits in a ring of readings of a count
 or two). While the scene does not change, the mean of its frames carries the same contact with
-1/√n of a frame's noise: with 0.5-count converter noise the rounding is dithered and averages
-out too. :class:`FrameFusion` keeps that mean for one patch and solves it now and then; every
+less noise. :class:`FrameFusion` keeps that mean for one patch and solves it now and then; every
 other frame republishes the last result without solving, so a held grasp or an idle patch
 costs one compiled pass over the readings (:func:`tactile_contact.inverse._temporal_kernels.
 held_step`).
 
+Noise. σ_i, passed in, is one frame's error (what the node's tracker learns from frames without
+contact). Only the part of it that changes from frame to frame averages out: the converter's
+noise, and with it the rounding when that noise dithers it (≳ 0.3 count); a baseline's offset
+or the rounding of a still reading without noise stays. The frames' scatter about their mean
+measures that part, s·σ_i (s learnt robustly, a trimmed mean of every frame's squared
+residuals, over SCALE_MEMORY frames); the mean of n frames then errs by
+σ_i·√(max(1 − s², 0) + s²/n), and the reconstructor solves it as that noise (``Frame.frames``,
+the effective number of frames).
+
 Per frame, against the mean of the window (the frames since the scene last changed, at most
-``window``), with each taxel's frame noise σ_i (scaled by a robust estimate of how far the
-readings' scatter exceeds it):
+``window``), with residuals u_i = (δ_i − mean_i)/(s·σ_i·√(1 + 1/n)) (s at least a rounding's
+worth, one count/√12, for 8-bit readings):
 
 - the whole frame: Σ u_i² (u_i = (δ_i − mean_i)/(σ_i·√(1 + 1/n))) against its χ² limit;
 - each taxel's neighbourhood (taxels within ``reach``): a small contact that appears, moves or
@@ -25,9 +33,9 @@ frame joins the window, and the window is solved again when its length reaches 2
 … 50 frames and then every ``resolve_every`` frames; each such solve looks back over the
 window's frames for a step along the new result's directions (a change too small for one frame,
 say a light press that began while the patch read nothing) and drops the frames before it. An
-idle patch (the last result has no contact) solves the mean of its last ``idle_window`` frames
-every ``idle_every`` frames instead: a touch too light for one frame is found with √n of its
-single-frame statistic, at the reconstructor's stated false-contact rate per solve.
+idle patch (the last result has no contact) solves the mean of its last 8, 16 or 32 frames in
+turn every ``idle_every`` frames instead: a touch too light for one frame is found with up to
+√32 of its single-frame statistic, at the reconstructor's stated false-contact rate per solve.
 
 Costs and limits, measured in bench/bench_time.py and bench/bench_held.py (docs/bench/time.md):
 a moving contact is averaged over the frames its motion stays within noise, so the fused
@@ -62,17 +70,24 @@ WINDOW = 50
 #: The window is solved again when it reaches these lengths, then every RESOLVE_EVERY frames.
 RESOLVE_AT = frozenset((2, 3, 4, 6, 8, 10, 12, 16, 20, 25, 32, 40, 50))
 RESOLVE_EVERY = 25
-#: An idle patch solves the mean of its last IDLE_WINDOW frames every IDLE_EVERY frames.
+#: An idle patch solves the mean of its last IDLE_WINDOWS frames in turn every IDLE_EVERY
+#: frames (a detector pass each, ≈ 20–35 µs). A window of 8 alone never finds a press whose
+#: frames reach a third of the detection threshold; 32 alone dilutes a press that began
+#: within it with the frames before.
 IDLE_EVERY = 4
-IDLE_WINDOW = 8
+IDLE_WINDOWS = (8, 16, 32)
 #: False-change rate of each test per frame (a false change costs one solve and restarts the
 #: window).
 ALPHA = 1e-3
 #: Taxels within this distance [m] of a taxel form its neighbourhood (itself and the ring of
 #: nearest taxels at the 5.5 mm pitch).
 REACH = 6.5e-3
-#: Frames the noise scale remembers.
+#: Frames the scale of the frame-to-frame scatter remembers, and the frames its starting
+#: value (1: the noise passed in changes from frame to frame) counts for: one frame's 72
+#: squared residuals give it to ±20 %, and a scale learnt from the first two frames alone
+#: made the change tests too tight. Readings of unknown noise start from the first.
 SCALE_MEMORY = 50.0
+SCALE_PRIOR = 10.0
 #: Steps of the round contacts' derivatives: centre [m] (within one 0.1 mm table step, where
 #: the tables are linear), radius (relative).
 STEP_XY = 1.0e-5
@@ -80,10 +95,10 @@ STEP_RADIUS = 0.02
 
 
 #: solve(δ (K,) [m], valid (K,), σ (K,) [m] as passed to :meth:`FrameFusion.step`, frames
-#: averaged n, noise scale² s² (one frame's noise is s·σ), want traction, want deflection,
-#: context) → the reconstructor's result for the mean of n frames, whose noise is
-#: s·σ/√n (n = 1: the frame alone, as the reconstructor solves it; ``context``: what the
-#: caller passed to :meth:`FrameFusion.step`).
+#: averaged n, effective frames (the mean's noise is σ/√effective), want traction, want
+#: deflection, context) → the reconstructor's result for the mean of n frames (n = 1: the
+#: frame alone, as the reconstructor solves it; ``context``: what the caller passed to
+#: :meth:`FrameFusion.step`).
 Solve = Callable[[NDArray, NDArray, NDArray, int, float, bool, bool, object], object]
 #: jacobian(result, valid) → (K, m) derivatives [m per unit] of the result's predicted
 #: readings in its parameters, or None (no contact, or no parametric contact).
@@ -108,7 +123,10 @@ class FrameFusion:
         taxel_xy: (K, 2) taxel centres [m].
         solve: the reconstructor's solve of a mean of frames (:data:`Solve`).
         jacobian: the result's parameter directions (:data:`Jacobian`).
-        window, resolve_every, idle_every, idle_window, alpha, reach: as the module constants.
+        rounding: the rounding error of one 8-bit reading [m] (one count/√12): the least
+            frame-to-frame scatter the change tests assume for quantised readings.
+        window, resolve_every, idle_every, idle_windows, alpha, reach: as the module
+            constants.
     """
 
     def __init__(
@@ -116,23 +134,31 @@ class FrameFusion:
         taxel_xy: NDArray,
         solve: Solve,
         jacobian: Jacobian,
+        rounding: float = 0.0,
         *,
         window: int = WINDOW,
         resolve_every: int = RESOLVE_EVERY,
         idle_every: int = IDLE_EVERY,
-        idle_window: int = IDLE_WINDOW,
+        idle_windows: tuple[int, ...] = IDLE_WINDOWS,
         alpha: float = ALPHA,
         reach: float = REACH,
     ) -> None:
         xy = np.asarray(taxel_xy, dtype=np.float64)
         k = len(xy)
-        if window < 2 or resolve_every < 1 or idle_every < 1 or idle_window < 1:
-            raise ValueError("window must be >= 2 and the cadences >= 1 frame")
+        if window < 2 or resolve_every < 1 or idle_every < 1 or not idle_windows:
+            raise ValueError("window must be >= 2, the cadences >= 1 frame, idle windows given")
+        if min(idle_windows) < 1:
+            raise ValueError(f"idle windows must be >= 1 frame, got {idle_windows}")
         if not 0.0 < alpha < 1.0:
             raise ValueError(f"alpha must be within (0, 1), got {alpha!r}")
         self._solve, self._jacobian = solve, jacobian
+        self._rounding = float(rounding)
+        self._quantised = True
+        self._sigma_seen: tuple[object, bool] = (None, False)
         self.window, self.resolve_every = int(window), int(resolve_every)
-        self.idle_every, self.idle_window, self.alpha = int(idle_every), int(idle_window), alpha
+        self.idle_every, self.alpha = int(idle_every), alpha
+        self.idle_windows = tuple(min(int(w), self.window) for w in idle_windows)
+        self._idle_turn = 0
         dist = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
         groups = [np.flatnonzero(row <= reach) for row in dist]
         width = max(len(g) for g in groups)
@@ -162,10 +188,21 @@ class FrameFusion:
         return int(self._state[kern.N])
 
     @property
-    def noise_scale(self) -> float:
-        """How far the frames' scatter exceeds the noise passed in (robust estimate, ≥ its
-        floor)."""
-        return math.sqrt(max(self._state[kern.SCALE2], self._state[kern.SCALE_FLOOR]))
+    def scatter(self) -> float:
+        """s: the frames' scatter about their mean over the noise passed in (robust estimate;
+        < 1 where part of that noise stays from frame to frame)."""
+        return math.sqrt(max(self._state[kern.SCALE2], 0.0))
+
+    def effective_frames(self, n: int) -> float:
+        """The mean of n frames errs as one frame's noise over √(this) (module docstring).
+        Readings of unknown noise (not quantised, none passed): all the noise there is to
+        know is the scatter, and it averages out (σ·s/√n)."""
+        if n <= 1:
+            return 1.0
+        s2 = max(self._state[kern.SCALE2], 1e-12)
+        if not self._quantised:
+            return n / s2
+        return 1.0 / (max(1.0 - s2, 0.0) + s2 / n)
 
     def reset(self) -> None:
         """Forget the window and the result (the next frame is solved on its own)."""
@@ -179,23 +216,29 @@ class FrameFusion:
         ok: NDArray,
         sigma: NDArray,
         *,
-        known_noise: bool,
+        quantised: bool,
         want_traction: bool = True,
         want_deflection: bool = True,
         context: object = None,
     ) -> object:
         """The result for this frame: readings ``delta`` (K,) [m] (0 where not ``ok``), valid
-        taxels ``ok`` (K,), each taxel's noise of one frame ``sigma`` (K,) [m].
-        ``known_noise``: sigma is the readings' noise (passed in, or the rounding of quantised
-        readings): the noise scale does not go below 1; else it learns either way.
-        ``context`` goes to the solve callback."""
+        taxels ``ok`` (K,), each taxel's noise of one frame ``sigma`` (K,) [m] (the same
+        array from frame to frame, unless it changed). ``quantised``: 8-bit readings (the
+        change tests assume at least a rounding's scatter). ``context`` goes to the solve
+        callback."""
         self._context = context
-        self._state[kern.SCALE_FLOOR] = 1.0 if known_noise else 1e-6
-        if self._ok is None or self.result is None or not np.array_equal(ok, self._ok):
-            return self._fresh(delta, ok, sigma, want_traction, want_deflection, "valid")
-        sigma = np.ascontiguousarray(sigma, dtype=np.float64)
+        self._quantised = quantised
+        if sigma is not self._sigma_seen[0] or quantised != self._sigma_seen[1]:
+            sigma = np.ascontiguousarray(sigma, dtype=np.float64)
+            floor = self._rounding / float(np.median(sigma)) if quantised else 1e-6
+            self._state[kern.SCALE_FLOOR] = floor * floor
+            self._state[kern.SCALE_PRIOR] = SCALE_PRIOR if quantised else 0.0
+            self._sigma_seen = (sigma, quantised)
+        if self._ok is None or self.result is None:
+            return self._fresh(delta, ok, sigma, want_traction, want_deflection, "start")
         changed = kern.held_step(
             delta,
+            ok,
             self._ok,
             sigma,
             self._buf,
@@ -207,7 +250,7 @@ class FrameFusion:
             self._limits,
         )
         if changed:
-            kind = ("frame", "neighbourhood", "parameters")[changed - 1]
+            kind = ("frame", "neighbourhood", "parameters", "valid")[changed - 1]
             return self._fresh(delta, ok, sigma, want_traction, want_deflection, kind)
         self._since += 1
         res = self.result
@@ -221,7 +264,8 @@ class FrameFusion:
                 return self._resolve(sigma, want_traction, want_deflection)
         elif self._since >= self.idle_every:
             self._since = 0
-            w = min(n, self.idle_window)
+            w = min(n, self.idle_windows[self._idle_turn % len(self.idle_windows)])
+            self._idle_turn += 1
             found = self._call(self._mean(w), sigma, w, False, False)
             if found.in_contact:  # type: ignore[attr-defined]
                 self._adopt(found, sigma)
@@ -232,14 +276,12 @@ class FrameFusion:
 
     def step_frame(self, frame: Frame, want_traction: bool, want_deflection: bool) -> Any:
         """:meth:`step` of a reconstructor's :class:`~tactile_contact.inverse.readings.Frame`
-        (the context its solve gets back). Quantised readings and noise levels passed in are
-        the readings' noise (the noise scale stays ≥ 1); precise readings of unknown noise
-        teach it."""
+        (the context its solve gets back)."""
         return self.step(
             frame.delta,
             frame.ok,
             frame.sigma,
-            known_noise=frame.quantised,
+            quantised=frame.quantised,
             want_traction=want_traction,
             want_deflection=want_deflection,
             context=frame,
@@ -248,11 +290,12 @@ class FrameFusion:
     # ------------------------------------------------------------------------------------
 
     def _call(self, d: NDArray, sigma: NDArray, n: int, want_t: bool, want_d: bool) -> object:
-        scale2 = self.noise_scale**2 if n > 1 else 1.0
-        return self._solve(d, self._ok, sigma, n, scale2, want_t, want_d, self._context)
+        eff = self.effective_frames(n)
+        return self._solve(d, self._ok, sigma, n, eff, want_t, want_d, self._context)
 
     def _scaled(self, sigma: NDArray) -> NDArray[np.float64]:
-        return sigma * self.noise_scale
+        """The frame-to-frame scatter [m] (at least the tests' floor)."""
+        return sigma * math.sqrt(max(self._state[kern.SCALE2], self._state[kern.SCALE_FLOOR]))
 
     def _rows(self, n: int) -> NDArray[np.intp]:
         """Ring rows of the newest n frames, oldest first."""
@@ -352,10 +395,10 @@ def reconstructor_fusion(recon: Reconstructor) -> FrameFusion:
     (``Frame.frames``; the result's ``frames`` is n), its directions the round contacts'
     derivatives (none for a grid field)."""
 
-    def solve(delta, ok, sigma, n, scale2, want_t, want_d, frame):  # type: ignore[no-untyped-def]
+    def solve(delta, ok, sigma, n, eff, want_t, want_d, frame):  # type: ignore[no-untyped-def]
         if n == 1:
             return recon._solve(frame, want_t, want_d)
-        mean = dataclasses.replace(frame, delta=delta, ok=ok, sigma=sigma, frames=n / scale2)
+        mean = dataclasses.replace(frame, delta=delta, ok=ok, sigma=sigma, frames=eff)
         return dataclasses.replace(recon._solve(mean, want_t, want_d), frames=n)
 
     def directions(result, ok):  # type: ignore[no-untyped-def]
@@ -363,7 +406,8 @@ def reconstructor_fusion(recon: Reconstructor) -> FrameFusion:
             return None
         return round_jacobian(recon._round, recon.taxel_xy, result.contacts)
 
-    return FrameFusion(recon.taxel_xy, solve, directions)
+    rounding = recon.readings.count_sigma / math.sqrt(2.0)  # one count/√12
+    return FrameFusion(recon.taxel_xy, solve, directions, rounding)
 
 
 def round_jacobian(
