@@ -96,7 +96,7 @@ def read_ini(path: str | Path) -> SkinGuiIni:
     """Read a skinGui ``.ini``; raises IcubFileError (file and line) on any problem."""
     p = str(path)
     try:
-        text = Path(path).read_text(encoding="utf-8", errors="replace")
+        text = Path(path).read_text(encoding="utf-8-sig", errors="replace")
     except OSError as exc:
         raise IcubFileError(p, None, f"cannot read: {exc.strerror or exc}") from None
     sensors: list[IniSensor] = []

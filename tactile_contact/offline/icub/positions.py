@@ -86,7 +86,7 @@ def read_positions(path: str | Path) -> PositionsFile:
     """Read a positions ``.txt``; raises IcubFileError (file and line) on any problem."""
     p = str(path)
     try:
-        text = Path(path).read_text(encoding="utf-8", errors="replace")
+        text = Path(path).read_text(encoding="utf-8-sig", errors="replace")
     except OSError as exc:
         raise IcubFileError(p, None, f"cannot read: {exc.strerror or exc}") from None
     link = sampling = None

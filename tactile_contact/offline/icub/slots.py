@@ -193,6 +193,14 @@ def gather(
             )
         else:
             chosen.append((s, SUPPORTED[s.type]))
+            if s.layout_num:
+                report.add(
+                    "layout_num",
+                    f"{ini_p}:{s.line}: layoutNum {s.layout_num} (the GUI draws channel k at "
+                    "11 - k): a drawing option, ignored; the CAN channel order is the module "
+                    "type's",
+                    slot=s.slot,
+                )
         span = SUPPORTED[s.type].slots if s.type in SUPPORTED else 1
         for k in range(span):
             if s.slot + k in taken:
