@@ -64,7 +64,7 @@ def message_type_name(cls: type) -> str:
 def _own_definitions() -> dict[str, str]:
     """Definitions of this package's messages (source tree or installed share directory)."""
     candidates = [
-        Path(__file__).resolve().parents[1] / "msg",
+        Path(__file__).resolve().parents[2] / "msg",
         Path(sys.prefix) / "share" / _PACKAGE / "msg",
     ]
     for folder in candidates:
