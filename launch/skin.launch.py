@@ -3,6 +3,16 @@
     ros2 launch tactile_contact skin.launch.py layout:=/path/layout.yaml bundles:=/path/bundles
     ros2 launch tactile_contact skin.launch.py use_simulator:=true
     ros2 launch tactile_contact skin.launch.py use_simulator:=true channel:=vcan0 use_rviz:=true
+    # a second machine in the same ROS domain taking worker 2 of 3 (this one runs 0 and 1):
+    ros2 launch tactile_contact skin.launch.py layout:=… bundles:=… workers:=2 worker_count:=3
+    ros2 launch tactile_contact skin.launch.py layout:=… bundles:=… use_driver:=false \
+        use_monitor:=false workers:=1 worker_count:=3 first_worker:=2
+
+One skin_driver per CAN bus of the layout (its patches' ``bus``; docs/layout.md), publishing
+each bus's readings in batches; the reconstruction runs as ``workers`` processes (default:
+one per core, at most one per patch), each serving its share of the patches (balanced by
+taxels, the same split on every machine: tactile_contact.ros.workers), restarted when one dies
+(respawn), with ``worker_monitor`` reporting a dead worker's patches stale on /diagnostics.
 
 Every node parameter that matters at bringup is a launch argument; the rest come from the
 YAML files in config/ (copy and edit them, or override with ros2 param). With
@@ -21,6 +31,7 @@ other nodes): a pipeline with a node missing is reported, not left half running.
 """
 
 import os
+from typing import Any
 
 from launch import LaunchContext, LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction, Shutdown
@@ -47,19 +58,30 @@ ARGUMENTS = [
     ("scenario", "sweep", "simulator scenario: sweep, press or idle"),
     ("use_rviz", "false", "start rviz2 with the package's configuration"),
     ("use_sim_time", "false", "use /clock (e.g. when replaying a bag)"),
+    (
+        "workers",
+        "auto",
+        "reconstruction workers on this machine (auto: one per core, at most one per patch)",
+    ),
+    ("worker_count", "", "reconstruction workers over all machines (empty: workers)"),
+    ("first_worker", "0", "index of this machine's first worker (another machine runs the others)"),
+    ("use_driver", "true", "start one skin_driver per bus of the layout (false: only reconstruct)"),
+    ("use_monitor", "true", "start worker_monitor (one per robot: a dead worker on /diagnostics)"),
 ]
+#: A dead worker is started again after this long [s] (launch respawn).
+RESPAWN_DELAY_S = 0.5
 
 #: python-can's default IPv4 group of its udp_multicast interface, and its default port.
 MULTICAST_GROUP, MULTICAST_PORT = "239.74.163.2", 43113
 
 
-def simulation_channel(domain_id: str) -> str:
+def simulation_channel(domain_id: str, bus_index: int = 0) -> str:
     """The udp_multicast channel of a simulation in ROS domain ``domain_id``: python-can binds
     every such bus to its port on all addresses, and Linux then delivers every group joined on
-    the machine at that port to it, so the port (43113 + domain id) is what keeps two
-    simulations apart."""
+    the machine at that port to it, so the port (43113 + domain id, + 256 per further bus of
+    the layout) is what keeps two simulations, and two buses, apart."""
     domain = int(domain_id) if domain_id.strip().isdigit() else 0
-    return f"{MULTICAST_GROUP}:{MULTICAST_PORT + domain}"
+    return f"{MULTICAST_GROUP}:{MULTICAST_PORT + domain + 256 * bus_index}"
 
 
 def _true(context: LaunchContext, name: str) -> bool:
@@ -103,53 +125,76 @@ def _nodes(context: LaunchContext) -> list:
     def ends_launch(name: str) -> list:
         return [Shutdown(reason=f"{name} exited")]
 
-    nodes = [
-        Node(
-            package="tactile_contact",
-            executable="skin_driver",
-            name="skin_driver",
-            namespace=arg("namespace"),
-            output="screen",
-            on_exit=ends_launch("skin_driver"),
-            parameters=[
-                shared("config", "skin_driver.yaml"),
-                {"layout": layout, "interface": interface, "channel": channel},
-                common,
-            ],
-        ),
-        Node(
-            package="tactile_contact",
-            executable="contact_reconstruction",
-            name="contact_reconstruction",
-            namespace=arg("namespace"),
-            output="screen",
-            on_exit=ends_launch("contact_reconstruction"),
-            parameters=[
-                shared("config", "contact_reconstruction.yaml"),
-                {"bundles_dir": arg("bundles"), "layout": layout},
-                common,
-            ],
-        ),
-    ]
-    if simulate:
+    from tactile_contact.model.layout import load_layout
+
+    buses = load_layout(layout).buses()
+    single = buses == ("",) or len(buses) == 1
+
+    def bus_channel(k: int, bus: str) -> str:
+        if single:
+            return channel
+        if interface == "udp_multicast" and not arg("channel").perform(context):
+            return simulation_channel(os.environ.get("ROS_DOMAIN_ID", "0"), k)
+        return bus  # socketcan: the bus is named after its interface (can0, can1, ...)
+
+    nodes = []
+    for k, bus in enumerate(buses):
+        suffix = f"_{bus}" if not single else ""
+        if _true(context, "use_driver"):
+            nodes.append(
+                Node(
+                    package="tactile_contact",
+                    executable="skin_driver",
+                    name=f"skin_driver{suffix}",
+                    namespace=arg("namespace"),
+                    output="screen",
+                    on_exit=ends_launch(f"skin_driver{suffix}"),
+                    parameters=[
+                        shared("config", "skin_driver.yaml"),
+                        {
+                            "layout": layout,
+                            "interface": interface,
+                            "channel": bus_channel(k, bus),
+                            "bus": bus,
+                        },
+                        common,
+                    ],
+                )
+            )
+        if simulate:
+            on_bus = [p.name for p in load_layout(layout).patches if p.bus == bus]
+            nodes.append(
+                Node(
+                    package="tactile_contact",
+                    executable="skin_simulator",
+                    name=f"skin_simulator{suffix}",
+                    namespace=arg("namespace"),
+                    output="screen",
+                    on_exit=ends_launch(f"skin_simulator{suffix}"),
+                    parameters=[
+                        shared("config", "skin_simulator.yaml"),
+                        {
+                            "layout": layout,
+                            "interface": interface,
+                            "channel": bus_channel(k, bus),
+                            "scenario": arg("scenario"),
+                            "patches": on_bus,
+                        },
+                        common,
+                    ],
+                )
+            )
+    nodes += _workers(context, layout, common, shared)
+    if _true(context, "use_monitor"):
         nodes.append(
             Node(
                 package="tactile_contact",
-                executable="skin_simulator",
-                name="skin_simulator",
+                executable="worker_monitor",
+                name="worker_monitor",
                 namespace=arg("namespace"),
                 output="screen",
-                on_exit=ends_launch("skin_simulator"),
-                parameters=[
-                    shared("config", "skin_simulator.yaml"),
-                    {
-                        "layout": layout,
-                        "interface": interface,
-                        "channel": channel,
-                        "scenario": arg("scenario"),
-                    },
-                    common,
-                ],
+                on_exit=ends_launch("worker_monitor"),
+                parameters=[shared("config", "worker_monitor.yaml"), common],
             )
         )
     if _true(context, "use_rviz"):
@@ -169,6 +214,48 @@ def _nodes(context: LaunchContext) -> list:
                 "install ros-$ROS_DISTRO-rviz2, or pass use_rviz:=false)"
             )
     return nodes
+
+
+def _workers(context: LaunchContext, layout: str, common: dict, shared: Any) -> list:
+    """This machine's reconstruction workers: ``workers`` processes, indices ``first_worker``
+    on, of ``worker_count``; each restarted RESPAWN_DELAY_S after it dies."""
+    from tactile_contact.model.layout import load_layout
+    from tactile_contact.ros.workers import default_workers
+
+    arg = LaunchConfiguration
+    text = arg("workers").perform(context).strip()
+    here = default_workers(len(load_layout(layout).patches)) if text == "auto" else int(text)
+    total = int(arg("worker_count").perform(context).strip() or here)
+    first = int(arg("first_worker").perform(context).strip() or 0)
+    if here < 1 or not 0 <= first <= total - here:
+        raise ValueError(
+            f"workers {here} from first_worker {first} do not fit in worker_count {total}"
+        )
+    get_logger("skin.launch").info(
+        f"reconstruction: workers {first}..{first + here - 1} of {total} on this machine"
+    )
+    return [
+        Node(
+            package="tactile_contact",
+            executable="contact_reconstruction",
+            name="contact_reconstruction" if total == 1 else f"contact_reconstruction_{i}",
+            namespace=arg("namespace"),
+            output="screen",
+            respawn=True,
+            respawn_delay=RESPAWN_DELAY_S,
+            parameters=[
+                shared("config", "contact_reconstruction.yaml"),
+                {
+                    "bundles_dir": arg("bundles"),
+                    "layout": layout,
+                    "worker_index": i,
+                    "worker_count": total,
+                },
+                common,
+            ],
+        )
+        for i in range(first, first + here)
+    ]
 
 
 def generate_launch_description() -> LaunchDescription:

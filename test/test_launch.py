@@ -28,6 +28,7 @@ NODE_CLASSES = {
         "ContactReconstructionNode",
     ),
     "skin_simulator": ("tactile_contact.ros.skin_simulator", "SkinSimulatorNode"),
+    "worker_monitor": ("tactile_contact.ros.worker_monitor", "WorkerMonitor"),
 }
 
 

@@ -38,7 +38,13 @@ pytestmark = pytest.mark.ros
 ROOT = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent
 VENV = VENV_BIN.parent
-EXECUTABLES = ("skin_driver", "skin_simulator", "contact_reconstruction", "tactile_contact_bringup")
+EXECUTABLES = (
+    "skin_driver",
+    "skin_simulator",
+    "contact_reconstruction",
+    "worker_monitor",
+    "tactile_contact_bringup",
+)
 TOOLS = (
     "tactile-contact",
     "tactile-contact-build",
@@ -335,7 +341,8 @@ def test_ros2_launch_without_rviz2_says_so_and_runs_the_rest(
         code = launch.interrupt()
     assert "rviz2 is not installed, not started" in launch.output, launch.output
     assert code == 0, launch.output
-    assert launch.output.count("process has finished cleanly") == 2, launch.output
+    # driver, reconstruction, worker_monitor
+    assert launch.output.count("process has finished cleanly") == 3, launch.output
     assert not launch.leftovers(), f"processes left running:\n{launch.output}"
 
 
@@ -394,8 +401,106 @@ def _launch_until_contact(workspace: Path, ros_context: object, arguments: str) 
     assert code == 0, launch.output
     for bad in BAD_OUTPUT:
         assert bad not in launch.output, launch.output
-    assert launch.output.count("process has finished cleanly") == 3, launch.output
+    # driver, simulator, reconstruction, worker_monitor
+    assert launch.output.count("process has finished cleanly") == 4, launch.output
     # The parameter files were found in the install (a missing one is only a warning).
     assert "Parameter file path is not a file" not in launch.output, launch.output
     assert not launch.leftovers(), f"processes left running:\n{launch.output}"
     return launch.output
+
+
+def test_ros2_launch_with_two_workers_a_killed_one_is_reported_and_respawned(
+    workspace: Path, ros_context: object
+) -> None:
+    """``workers:=2`` on a layout of two patches (robot_skin.yaml: forearm and palm, one bus):
+    each worker serves one patch; a worker killed (SIGKILL) has its patch STALE on
+    /diagnostics within a second, the launch starts it again and it serves its patch again;
+    Ctrl-C ends everything cleanly."""
+    _require_ros2()
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from tactile_contact.msg import ContactArray, ReconstructionWorker
+
+    out = workspace / "robot_bundles"
+    layout = "install/tactile_contact/share/tactile_contact/config/robot_skin.yaml"
+    done = _run(workspace, f"tactile-contact-build {layout} -o {out}", timeout_s=600.0)
+    assert done.returncode == 0, done.stdout + done.stderr
+    group = f"239.{random.randint(1, 254)}.{random.randint(1, 254)}.{random.randint(1, 254)}"
+    port = 20000 + (os.getpid() + 7) % 20000
+    launch = Shell(
+        workspace,
+        "ros2 launch tactile_contact skin.launch.py use_simulator:=true scenario:=press "
+        f"interface:=udp_multicast channel:={group}:{port} layout:={workspace / layout} "
+        f"bundles:={out} workers:=2",
+    )
+    node = Node("workers_probe", context=ros_context)
+    workers: dict[str, tuple[str, ...]] = {}  # host/pid → patches served
+    served: dict[str, set[str]] = {}  # patch → workers that published it in contacts
+    stale: list[tuple[float, str]] = []
+    node.create_subscription(
+        ReconstructionWorker,
+        "/reconstruction_workers",
+        lambda m: workers.__setitem__(m.worker, tuple(m.patches)),
+        QoSProfile(depth=20, reliability=ReliabilityPolicy.RELIABLE),
+    )
+
+    def on_contacts(m: ContactArray) -> None:
+        for p in m.patches:
+            served.setdefault(p, set()).add(m.worker)
+
+    node.create_subscription(
+        ContactArray,
+        "/contacts",
+        on_contacts,
+        QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT),
+    )
+
+    def on_diag(m: DiagnosticArray) -> None:
+        for st in m.status:
+            if st.name.startswith("contact_reconstruction: ") and st.level[0] == 3:
+                stale.append((time.monotonic(), st.name.split(": ", 1)[1]))
+
+    node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 50)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+
+    def spin_until(done: object, timeout_s: float) -> bool:
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end and launch.proc.poll() is None:
+            executor.spin_once(timeout_sec=0.1)
+            if done():  # type: ignore[operator]
+                return True
+        return False
+
+    try:
+        both = spin_until(lambda: {"forearm", "palm"} <= set(served), 300.0)
+        assert both, (served, workers, launch.output)
+        owner = {p: ws for p, ws in served.items()}
+        assert all(len(ws) == 1 for ws in owner.values()), owner  # one worker a patch
+        (victim,) = owner["palm"]
+        pid = int(victim.rsplit("/", 1)[1])
+        killed = time.monotonic()
+        os.kill(pid, signal.SIGKILL)
+        assert spin_until(lambda: any(p == "palm" and t > killed for t, p in stale), 5.0), (
+            launch.output
+        )
+        first = min(t for t, p in stale if p == "palm" and t > killed)
+        print(f"palm stale on /diagnostics {first - killed:.2f} s after its worker was killed")
+        assert first - killed <= 1.0
+        served.clear()
+        assert spin_until(lambda: "palm" in served and victim not in served["palm"], 300.0), (
+            served,
+            launch.output,
+        )
+        assert "respawning" in launch.output.lower() or len(workers) >= 3, launch.output
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        code = launch.interrupt()
+    assert code == 0, launch.output
+    for bad in BAD_OUTPUT:
+        assert bad not in launch.output, launch.output
+    assert not launch.leftovers(), f"processes left running:\n{launch.output}"

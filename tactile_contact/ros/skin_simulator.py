@@ -39,6 +39,7 @@ from tactile_contact.msg import ContactState
 from tactile_contact.ros import common as cm
 from tactile_contact.ros import convert
 from tactile_contact.ros.skin_driver import default_layout_path
+from tactile_contact.sim.scenes import scenario_indentation
 from tactile_contact.sim.simulator import Indentation, SimPeriod, simulator_for_patch
 
 WARN_THROTTLE_S = 5.0
@@ -47,6 +48,8 @@ WARN_THROTTLE_S = 5.0
 PARAMETERS: tuple[tuple[str, Any, str, dict[str, Any]], ...] = (
     ("layout", "", "patch layout YAML; empty = the package's config/hexagon_patch.yaml", {}),
     ("patch", "", "patch to simulate; empty = the layout's first patch", {}),
+    ("patches", cm.STRING_ARRAY_EMPTY, "patches to simulate on this bus, each with the scenario "
+     "(the first is `patch`'s role); empty = `patch` alone", {}),
     ("interface", "virtual", "python-can interface the frames are written to", {}),
     ("channel", "skin", "python-can channel", {}),
     ("bitrate", 0, "bit rate for interfaces that set it; 0 = leave as is",
@@ -90,30 +93,6 @@ class _Looped:
         return self._ind.at(math.fmod(t, self._cycle) if self._loop else t)
 
 
-def scenario_indentation(
-    scenario: str, patch: PatchLayout, indenter: Any, force_n: float, cycle_s: float
-) -> Indentation | None:
-    """The scripted indentation of one cycle [s from cycle start]; None for ``idle``."""
-    if scenario == "idle":
-        return None
-    xy = patch.taxel_xy()
-    lo, hi = xy.min(axis=0), xy.max(axis=0)
-    # On the taxel nearest the patch centre: between taxels a small indenter may touch none.
-    nearest = xy[np.argmin(np.linalg.norm(xy - (lo + hi) / 2, axis=1))]
-    center = (float(nearest[0]), float(nearest[1]))
-    hold = cycle_s - 1.5  # ramp 0.5 s, hold, release 0.5 s, rest 0.5 s
-    if scenario == "press":
-        return Indentation.press(indenter, force_n, center, start_s=0.0, ramp_s=0.5, hold_s=hold)
-    if scenario == "sweep":
-        margin = 0.15 * (hi[0] - lo[0])
-        start = (float(lo[0] + margin), center[1])
-        end = (float(hi[0] - margin), center[1])
-        return Indentation.press(
-            indenter, force_n, start, start_s=0.0, ramp_s=0.5, hold_s=hold, end=end
-        )
-    raise ValueError(f"scenario must be sweep, press or idle, got {scenario!r}")
-
-
 class SkinSimulatorNode(Node):
     """The ``skin_simulator`` node (see the module docstring).
 
@@ -138,42 +117,56 @@ class SkinSimulatorNode(Node):
         cm.log_parameters(self, names)
         p = {n: self.get_parameter(n).value for n in names}
         layout = load_layout(Path(p["layout"]) if p["layout"] else default_layout_path())
-        self.patch = layout.patch(p["patch"]) if p["patch"] else layout.patches[0]
+        if p["patches"]:
+            patches = [layout.patch(name) for name in p["patches"]]
+        else:
+            patches = [layout.patch(p["patch"]) if p["patch"] else layout.patches[0]]
         self.period_s = p["period_ms"] * 1e-3
-        self.sim = simulator_for_patch(
-            self.patch,
-            noise_cdc=p["noise_cdc"],
-            rest_spread_cdc=p["rest_spread_cdc"],
-            drift_cdc_per_s=p["drift_cdc_per_s"],
-            period_s=self.period_s,
-            id_class=CLASS_ANALOG_SENSOR if p["class3_ids"] else CLASS_SKIN,
-            seed=p["seed"],
-            fine_cell=p["fine_cell_m"],
-            realtime=True,
-        )
         shape = HertzSphere if p["indenter"] == "sphere" else FlatPunch
         self.indenter = shape(p["indenter_radius_m"])
-        ind = scenario_indentation(
-            p["scenario"], self.patch, self.indenter, p["force_n"], p["cycle_s"]
-        )
-        self.indentation = (
-            None if ind is None else _Looped(ind, p["cycle_s"], p["loop"], p["start_delay_s"])
-        )
+        # Per patch: (layout, simulator, looped indentation); the first also as self.patch,
+        # self.sim, self.indentation (one patch, as before).
+        self.simulated: list[tuple[PatchLayout, Any, Any]] = []
+        for k, pl in enumerate(patches):
+            sim = simulator_for_patch(
+                pl,
+                noise_cdc=p["noise_cdc"],
+                rest_spread_cdc=p["rest_spread_cdc"],
+                drift_cdc_per_s=p["drift_cdc_per_s"],
+                period_s=self.period_s,
+                id_class=CLASS_ANALOG_SENSOR if p["class3_ids"] else CLASS_SKIN,
+                seed=p["seed"] + k,
+                fine_cell=p["fine_cell_m"],
+                realtime=True,
+            )
+            ind = scenario_indentation(p["scenario"], pl, self.indenter, p["force_n"], p["cycle_s"])
+            looped = (
+                None if ind is None else _Looped(ind, p["cycle_s"], p["loop"], p["start_delay_s"])
+            )
+            self.simulated.append((pl, sim, looped))
+        self.patch, self.sim, self.indentation = self.simulated[0]
         kwargs_bus = bus_kwargs(p["interface"], p["channel"], p["bitrate"])  # (GROUP:PORT too)
         if p["interface"] == "virtual":
             kwargs_bus["preserve_timestamps"] = True  # receivers see the stamps of the truth
         self._bus = can.Bus(**kwargs_bus)
         try:
-            self.truth_pub = self.create_publisher(
-                ContactState, f"{self.patch.name}/contact_truth", cm.SENSOR_QOS
-            )
+            self.truth_pubs = {
+                pl.name: self.create_publisher(
+                    ContactState, f"{pl.name}/contact_truth", cm.SENSOR_QOS
+                )
+                for pl, _, _ in self.simulated
+            }
+            self.truth_pub = self.truth_pubs[self.patch.name]
             self.periods_sent = 0
             self.send_errors = 0
             self._thread = threading.Thread(target=self._run, name="skin_sim", daemon=True)
             self._thread.start()
+            names = ", ".join(
+                f"{pl.name} ({len(pl.modules)} modules)" for pl, _, _ in self.simulated
+            )
             self.get_logger().info(
-                f"simulating patch {self.patch.name} ({len(self.patch.modules)} modules), "
-                f"scenario {p['scenario']}, on {p['interface']}:{p['channel']}"
+                f"simulating patch {names}, scenario {p['scenario']}, "
+                f"on {p['interface']}:{p['channel']}"
             )
         except BaseException:
             # A Ctrl-C here leaves no node for run_node to destroy, and rclpy's SIGINT handler
@@ -190,14 +183,16 @@ class SkinSimulatorNode(Node):
         while not self._stop.is_set():
             t = k * self.period_s
             try:
-                period = self.sim.period(self.indentation, t)  # type: ignore[arg-type]
-                # Stamped when sent, as a bus would: if the simulation falls behind its
-                # schedule, latency downstream is still measured from the frames' real arrival.
-                sent = time.time()
-                for msg in period.messages:
-                    msg.timestamp = sent
-                    self._bus.send(msg, timeout=0.01)
-                self._publish_truth(period)
+                for pl, sim, indentation in self.simulated:
+                    period = sim.period(indentation, t)
+                    # Stamped when sent, as a bus would: if the simulation falls behind its
+                    # schedule, latency downstream is still measured from the frames' real
+                    # arrival.
+                    sent = time.time()
+                    for msg in period.messages:
+                        msg.timestamp = sent
+                        self._bus.send(msg, timeout=0.01)
+                    self._publish_truth(period, pl)
                 self.periods_sent += 1
             except Exception as exc:  # a full queue or a bus error must not stop the demo
                 self.send_errors += 1
@@ -208,11 +203,12 @@ class SkinSimulatorNode(Node):
             k += 1
             self._stop.wait(max(0.0, mono0 + k * self.period_s - time.monotonic()))
 
-    def _publish_truth(self, period: SimPeriod) -> None:
+    def _publish_truth(self, period: SimPeriod, patch: PatchLayout | None = None) -> None:
+        patch = patch or self.patch
         tr = period.truth
-        el = self.patch.elastomer
-        msg = ContactState(patch=self.patch.name, solver="truth", solver_success=True)
-        msg.header.frame_id = self.patch.frame_id
+        el = patch.elastomer
+        msg = ContactState(patch=patch.name, solver="truth", solver_success=True)
+        msg.header.frame_id = patch.frame_id
         msg.header.stamp = cm.stamp_from_seconds(period.messages[-1].timestamp)
         msg.in_contact = tr.force > 0.0
         msg.total_force = float(tr.force)
@@ -225,8 +221,8 @@ class SkinSimulatorNode(Node):
             msg.contacts = [convert.contact(Contact(tr.force, tr.center, a, profile))]
             peak = self.indenter.pressure_at_radius(np.array([0.0]), tr.force, el.young, el.poisson)
             msg.peak_pressure = float(np.max(peak)) if np.all(np.isfinite(peak)) else 0.0
-        msg.taxels_used = int(self.patch.valid_mask().sum())
-        self.truth_pub.publish(msg)
+        msg.taxels_used = int(patch.valid_mask().sum())
+        cm.publish_while_up(self, self.truth_pubs[patch.name], msg)
 
     def _stop_and_close(self) -> None:
         self._stop.set()
