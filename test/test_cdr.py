@@ -207,3 +207,22 @@ def test_a_taxel_batch_written_here_reads_in_rclpy(d: dict) -> None:
     assert deserialize_message(data, TaxelBatch) == expected
     # (not byte for byte: the rmw leaves its padding bytes as it found them)
     assert len(data) == len(serialize_message(expected))
+
+
+@given(contact_rows(), stamps, names)
+def test_a_contact_array_reads_back_as_written_and_as_rclpy_wrote_it(
+    rows, stamp, worker: str
+) -> None:
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    from tactile_contact.msg import ContactArray
+    from tactile_contact.ros.cdr import read_contact_array, write_contact_array
+
+    data = write_contact_array(stamp[0] * 10**9 + stamp[1], worker, rows)
+    got_worker, got = read_contact_array(data)
+    assert got_worker == worker and got == rows
+    # and from the rmw's own bytes of the same message
+    assert read_contact_array(serialize_message(deserialize_message(data, ContactArray))) == (
+        worker,
+        rows,
+    )

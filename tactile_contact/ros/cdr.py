@@ -362,3 +362,51 @@ def write_taxel_batch(
             else:
                 out += np.ascontiguousarray(a, dtype=dtype).tobytes()
     return bytes(out)
+
+
+def read_contact_array(buf: bytes) -> tuple[str, ContactRows]:
+    """A ``tactile_contact/ContactArray`` from its bytes: (worker, its rows) — for listeners
+    that take many of them (a load benchmark's probe) without rclpy's message objects."""
+    if buf[:2] != _HEADER_LE[:2]:
+        raise CdrError(f"ContactArray: not little-endian CDR (encapsulation {buf[:2].hex()!r})")
+    u32 = _U32.unpack_from
+    rows = ContactRows()
+    try:
+        (_, worker), pos = _strings(buf, 12, 2)  # header.frame_id, worker
+        for items in (rows.patches, rows.frame_ids):
+            (n,) = u32(buf, pos + -pos % 4)
+            got, pos = _strings(buf, pos + -pos % 4 + 4, n)
+            items += got
+        pos += -pos % 4
+        (n,) = u32(buf, pos)
+        t = struct.unpack_from(f"<{2 * n}i", buf, pos + 4)
+        rows.stamps_ns = [t[i] * 1_000_000_000 + t[i + 1] for i in range(0, 2 * n, 2)]
+        pos += 4 + 8 * n
+        (n,) = u32(buf, pos)
+        rows.states = list(buf[pos + 4 : pos + 4 + n])
+        pos += 4 + n
+        for name in ("total_force", "cop_x", "cop_y", "latency"):
+            pos += -pos % 4
+            (n,) = u32(buf, pos)
+            pos += 4
+            if n:
+                pos += -(pos - 4) % 8
+            setattr(rows, name, list(struct.unpack_from(f"<{n}d", buf, pos)))
+            pos += 8 * n
+        pos += -pos % 4
+        (c,) = u32(buf, pos)
+        pos += 4
+        for _ in range(c):
+            pos += -(pos - 4) % 8
+            force, x, y, z, radius = _CONTACT.unpack_from(buf, pos)
+            (profile,), pos = _strings(buf, pos + 40, 1)
+            rows.force.append(force)
+            rows.center.append((x, y, z))
+            rows.radius.append(radius)
+            rows.profile.append(profile)
+        pos += -pos % 4
+        (c,) = u32(buf, pos)
+        rows.contact_patch = list(struct.unpack_from(f"<{c}I", buf, pos + 4))
+    except struct.error as exc:
+        raise CdrError(f"ContactArray: truncated or malformed ({exc})") from None
+    return worker, rows
