@@ -15,7 +15,9 @@ import argparse
 import sys
 import threading
 import time
+from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 
 def _seconds(text: str) -> float:
@@ -47,6 +49,15 @@ def _report(lines: list[str], problems: list[str]) -> int:
     for problem in problems:
         print(f"ERROR: {problem}", file=sys.stderr)
     return 1 if problems else 0
+
+
+def _nothing_to_reconstruct(nodes: Iterable[Any]) -> bool:
+    """Whether the graph's reconstruction serves no patch at all (no usable bundle): running
+    on would only move frames nobody turns into contacts."""
+    from tactile_contact.ros.contact_reconstruction import ContactReconstructionNode
+
+    recon = [n for n in nodes if isinstance(n, ContactReconstructionNode)]
+    return bool(recon) and not any(n.pipelines for n in recon)
 
 
 def _add_graph_args(p: argparse.ArgumentParser) -> None:
@@ -89,6 +100,8 @@ def _bringup(args: argparse.Namespace) -> int:
                 deadline = time.monotonic() + args.duration if args.duration > 0 else None
                 while context.ok() and (deadline is None or time.monotonic() < deadline):
                     executor.spin_once(timeout_sec=0.1)
+                    if _nothing_to_reconstruct(executor.get_nodes()):
+                        break  # (said in the summary: no patch has a usable bundle)
             except KeyboardInterrupt:
                 pass
             finally:  # (before the graph is destroyed: its nodes hold the counts)
