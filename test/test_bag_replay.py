@@ -60,9 +60,10 @@ def test_replay_reproduces_the_recorded_summaries(ros_context: object, tmp_path:
             Parameter("bundles_dir", value=str(tmp_path)),
             Parameter("queue_depth", value=1000),  # a replay must process every frame
             # The shipped bag's summaries were recorded by a node that solved every frame on
-            # its own (--no-follow); a following node's answers depend on the frames before,
-            # and the live run skipped frames this replay solves.
+            # its own (--no-follow); a following or fusing node's answers depend on the frames
+            # before, and the live run skipped frames this replay solves.
             Parameter("follow_contacts", value=False),
+            Parameter("fuse_frames", value=False),
         ],
     )
     probe = Node("replay_probe", context=ros_context)

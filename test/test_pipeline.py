@@ -90,11 +90,20 @@ def test_every_frame_gets_all_outputs_and_the_force_is_right(
 
     # The node adds no error of its own: each summary is what the core computes from the ΔC
     # the driver published for that frame, the frames taken in order (the node follows each
-    # contact from the frame before, as the core does with follow=True).
+    # contact from the frame before and fuses the frames of a held scene, as the core does with
+    # follow=True, fuse=True, and passes the noise its tracker learns from frames without
+    # contact).
     from tactile_contact import Reconstructor
+    from tactile_contact.inverse.detection import NoiseTracker
 
-    recon = Reconstructor.from_bundle(bundles / "hexagon", follow=True)
-    refs = {stamp: recon.solve(seen.taxels[stamp]) for stamp in sorted(seen.taxels)}
+    recon = Reconstructor.from_bundle(bundles / "hexagon", follow=True, fuse=True)
+    tracker = NoiseTracker(recon.default_noise / np.sqrt(2.0), start=recon.default_noise)
+    refs = {}
+    for stamp in sorted(seen.taxels):
+        dc = np.asarray(seen.taxels[stamp], dtype=np.float64)
+        refs[stamp] = recon.solve(dc, noise=tracker.sigma)
+        if not refs[stamp].in_contact:
+            tracker.update(recon.compression(dc), np.ones(len(dc), bool), False)
     for stamp in sorted(seen.contact):
         if stamp in refs:
             want = refs[stamp].total_force

@@ -82,7 +82,7 @@ def _bringup(args: argparse.Namespace) -> int:
         channel=args.channel or ("tactile_contact" if args.simulate else "can0"),
         scenario=args.scenario,
         namespace=args.namespace,
-        reconstruction={"follow_contacts": False} if args.no_follow else {},
+        reconstruction={"follow_contacts": False, "fuse_frames": False} if args.no_follow else {},
     )
     context = Context()
     rclpy.init(context=context)
@@ -243,8 +243,8 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument(
         "--no-follow",
         action="store_true",
-        help="solve every frame on its own (follow_contacts false): a recording any replay "
-        "reproduces frame for frame",
+        help="solve every frame on its own (follow_contacts and fuse_frames false): a "
+        "recording any replay reproduces frame for frame",
     )
     r = sub.add_parser("replay", help="replay a bag's taxel arrays into a reconstruction node")
     r.add_argument("bag")

@@ -79,19 +79,21 @@ PARAMETERS = (
     "taxel_full_scale",
     "diagnostics_period",
     "follow_contacts",
+    "fuse_frames",
 )
 
 
-def load_reconstructor(path: Path, follow: bool = True) -> Reconstructor:
+def load_reconstructor(path: Path, follow: bool = True, fuse: bool = True) -> Reconstructor:
     """A Reconstructor of the bundle at ``path``, its arrays read into memory, warmed up;
-    following contacts from frame to frame unless ``follow`` is False.
+    following contacts from frame to frame unless ``follow`` is False, fusing the frames of a
+    scene held still (:mod:`tactile_contact.inverse.temporal`) unless ``fuse`` is False.
 
     Not memory-mapped: a bundle file overwritten in place while mapped would crash the process
     (SIGBUS) at the next frame; read, the node keeps what it checked and loaded. Warmed up
     (:meth:`Reconstructor.warm_up`): the first contact must not wait for kernels to compile,
     and a bundle that cannot solve is refused here, before it serves.
     """
-    recon = Reconstructor(load_bundle(path, mmap=False), follow=follow)
+    recon = Reconstructor(load_bundle(path, mmap=False), follow=follow, fuse=fuse)
     recon.warm_up()
     return recon
 
@@ -193,6 +195,15 @@ class ContactReconstructionNode(Node):
             "start each frame's contact fit from the last frame's contact and search the whole "
             "patch only when it no longer explains the readings (false: every frame on its own)",
         )
+        self.fuse_frames = declare_parameter(
+            self,
+            "fuse_frames",
+            True,
+            "while a patch's readings hold still, solve the mean of their frames now and then "
+            "and republish its result in between: a held press is measured better the longer "
+            "it is held and costs almost nothing; a change is solved at once (false: every "
+            "frame solved)",
+        )
         period = declare_parameter(
             self,
             "diagnostics_period",
@@ -224,7 +235,7 @@ class ContactReconstructionNode(Node):
         for name, path in self._paths.items():
             sig = bundle_signature(path)
             try:
-                recon = load_reconstructor(path, self.follow_contacts)
+                recon = load_reconstructor(path, self.follow_contacts, self.fuse_frames)
             except Exception as exc:  # every refusal is reported; other patches go on
                 self.load_errors[name] = self._unusable(path, exc)
                 self._refused[path] = sig
@@ -325,7 +336,7 @@ class ContactReconstructionNode(Node):
                     log.warning(f"patch {pipe.name}: {pipe.bundle_problem}")
                 continue
             try:
-                recon = load_reconstructor(pipe.bundle, self.follow_contacts)
+                recon = load_reconstructor(pipe.bundle, self.follow_contacts, self.fuse_frames)
                 if recon.patch != pipe.name:
                     raise ValueError(f"it is now a bundle of patch {recon.patch!r}")
             except Exception as exc:
@@ -348,7 +359,7 @@ class ContactReconstructionNode(Node):
             if not sig or sig == self._refused.get(path):
                 continue
             try:
-                recon = load_reconstructor(path, self.follow_contacts)
+                recon = load_reconstructor(path, self.follow_contacts, self.fuse_frames)
             except Exception as exc:
                 self._refused[path] = sig
                 self.load_errors[name] = self._unusable(path, exc)

@@ -479,6 +479,20 @@ class PatchPipeline:
                 convert.contact_markers(result.contacts, header, self.name, self.surface)
             )
 
+    def _fusion_counts(self) -> dict[str, object]:
+        """The held scene's frames (fuse_frames): solved on their own (a change), fused (the
+        mean of the held frames solved), republished without a solve."""
+        fusion = self.recon.fusion
+        if fusion is None:
+            return {}
+        c = fusion.counts
+        return {
+            "frames_solved_alone": c.solved,
+            "frames_fused": c.fused,
+            "frames_republished": c.held,
+            "frames_in_result": fusion.result_frames,
+        }
+
     def diagnostics(self) -> Any:
         s = self.stats
         if self._contact is not None and time.monotonic() - self._last_frame > 1.0:
@@ -507,6 +521,7 @@ class PatchPipeline:
             "noise_median_um": float(np.median(self.noise.sigma) * 1e6),
             "noise_max_um": float(np.max(self.noise.sigma) * 1e6),
             "noise_frames": self.noise.frames_used,
+            **self._fusion_counts(),
             "false_alarm_bound_per_hour": self.recon.detector.per_hour
             if self.recon.detector is not None
             else 0.0,
