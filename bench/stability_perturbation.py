@@ -25,7 +25,7 @@ from tactile_contact.model.indenters import FlatPunch, HertzSphere
 
 def compute(args: Any) -> dict[str, Any]:
     tmp = Path(tempfile.mkdtemp(prefix="stability_perturbation_"))
-    base = Pipeline(Config("d", "d", "default"), tmp / "base").recon
+    base = Pipeline(Config("d", "d", "default"), tmp / "base", measure=False).recon
     fm, xy = fine_model(base), base.taxel_xy
     loads = [
         (HertzSphere(6e-3), 2.0, xy[40]),
@@ -49,7 +49,7 @@ def compute(args: Any) -> dict[str, Any]:
             "elastomer",
             {"elastomer": {key: {"young": E, "thickness": H, "poisson": NU}[key] * factor}},
         )
-        r = Pipeline(cfg, tmp / f"{key}{factor}").recon
+        r = Pipeline(cfg, tmp / f"{key}{factor}", measure=False).recon
         res = [r.solve_deflection(d) for d in deltas]
         out.append(
             {

@@ -104,13 +104,18 @@ def _free_operator(recon: Reconstructor) -> tuple[Any, str]:
 
 class Pipeline:
     """A configuration's online path: ΔC [F] (K,) → ContactResult, through Reconstructor;
-    ``build_s`` and ``build_mb``: its offline build's wall time [s] and peak memory [MB]."""
+    ``build_s`` and ``build_mb``: its offline build's wall time [s] and peak memory [MB]
+    (``measure`` False: built once, not measured, both NaN)."""
 
-    def __init__(self, cfg: Config, folder: Path) -> None:
+    def __init__(self, cfg: Config, folder: Path, measure: bool = True) -> None:
         self.cfg = cfg
-        (manifest, arrays, extra), self.build_s, self.build_mb = timed_build(
-            _build, variant(cfg.sections), cfg
-        )
+        if measure:
+            (manifest, arrays, extra), self.build_s, self.build_mb = timed_build(
+                _build, variant(cfg.sections), cfg
+            )
+        else:
+            manifest, arrays, extra = _build(variant(cfg.sections), cfg)
+            self.build_s = self.build_mb = float("nan")
         self.recon: Reconstructor = Reconstructor.from_bundle(save_bundle(folder, manifest, arrays))
         if "inverse64" in extra:
             # Reconstructor has no precision option (it always casts C⁺ to float32); the bench
@@ -194,5 +199,5 @@ SOLVERS = {
 
 
 def pipelines(names: list[str], folder: Path) -> dict[str, Pipeline]:
-    """The named SOLVERS' pipelines, their bundles under ``folder``."""
-    return {k: Pipeline(SOLVERS[k], folder / k.replace(" ", "_")) for k in names}
+    """The named SOLVERS' pipelines, their bundles under ``folder`` (builds not measured)."""
+    return {k: Pipeline(SOLVERS[k], folder / k.replace(" ", "_"), measure=False) for k in names}
