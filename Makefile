@@ -128,19 +128,24 @@ test-data: setup bundles
 	  --duration 7 --no-follow --record test/data/hexagon_session \
 	  --record-topics taxels contact contact_truth
 
+# The stability benches, one comparison each (docs/benchmarks.md).
+STABILITY := conditioning kernels units noise precision perturbation net_force
+
 bench: setup
 	$(PY) bench/tradeoff.py --out docs/bench
-	$(PY) bench/stability.py --out docs/bench
+	set -e; for s in $(STABILITY); do $(PY) bench/stability_$$s.py --out docs/bench; done
 
 bench-quick: setup
 	$(PY) bench/tradeoff.py --quick --out out/bench-quick
 
 # Issue 16's figures: accuracy on other taxel responses (default and calibrated, with the
-# Cramér–Rao bound), one frame's run time beside scipy nnls, false contacts on noise alone.
+# Cramér–Rao bound), one frame's run time beside scipy nnls, false contacts on noise alone,
+# detection of light presses.
 bench-robust: setup
 	$(PY) bench/bench_robust.py --out docs/bench
 	$(PY) bench/bench_speed.py --out docs/bench
 	$(PY) bench/bench_false_alarm.py --out docs/bench
+	$(PY) bench/bench_detection.py --out docs/bench
 
 clean:
 	rm -rf build out bundles .pytest_cache .ruff_cache .hypothesis
