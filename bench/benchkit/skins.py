@@ -49,7 +49,7 @@ def patch_frames(
     stamps each frame when it sends it."""
     from tactile_contact.model.indenters import HertzSphere
     from tactile_contact.model.layout import load_layout
-    from tactile_contact.ros.skin_simulator import scenario_indentation
+    from tactile_contact.sim.scenes import scenario_indentation
     from tactile_contact.sim.simulator import simulator_for_patch
 
     count = int(seconds / (PERIOD_MS * 1e-3))
