@@ -20,7 +20,8 @@ from scipy.spatial import cKDTree
 
 from benchkit.protocol import variant
 from benchkit.timing import timed_build
-from tactile_contact.inverse.reconstruction import ContactResult, Reconstructor
+from tactile_contact.inverse.reconstruction import Reconstructor
+from tactile_contact.inverse.result import ContactResult
 from tactile_contact.inverse.solvers import NnlsSolver
 from tactile_contact.inverse.summary import summarize
 from tactile_contact.model.layout import PatchLayout
@@ -93,15 +94,6 @@ def _build(patch: PatchLayout, cfg: Config) -> tuple[dict, dict, dict]:
     return manifest, arrays, extra
 
 
-def _free_operator(recon: Reconstructor) -> tuple[Any, str]:
-    """Where the reconstructor keeps its float32 free operator C⁺: its grid-fallback stage's
-    ``inverse`` (the stage modules of issue 23), or ``_inverse`` on Reconstructor before."""
-    grid = getattr(recon, "grid", None)
-    if grid is not None and hasattr(grid, "inverse"):
-        return grid, "inverse"
-    return recon, "_inverse"
-
-
 class Pipeline:
     """A configuration's online path: ΔC [F] (K,) → ContactResult, through Reconstructor;
     ``build_s`` and ``build_mb``: its offline build's wall time [s] and peak memory [MB]
@@ -120,9 +112,9 @@ class Pipeline:
         if "inverse64" in extra:
             # Reconstructor has no precision option (it always casts C⁺ to float32); the bench
             # swaps in the float64 operator, which its product then uses as is.
-            holder, name = _free_operator(self.recon)
-            assert getattr(holder, name).shape == extra["inverse64"].shape
-            setattr(holder, name, np.ascontiguousarray(extra["inverse64"]))
+            grid = self.recon.grid  # the grid-fallback stage holds the free operator
+            assert grid.inverse.shape == extra["inverse64"].shape
+            grid.inverse = np.ascontiguousarray(extra["inverse64"])
         self.interp = extra.get("interp")
         self.nnls: NnlsSolver | None = extra.get("nnls")
         r = self.recon
