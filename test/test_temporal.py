@@ -330,3 +330,36 @@ def test_warm_up_compiles_the_step_and_leaves_no_state(setup):
     )
     signatures, empty, frames = json.loads(out.stdout.strip().splitlines()[-1])
     assert signatures == 1 and empty and frames == 0
+
+
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 40), bump=st.floats(0.0, 3.0))
+def test_idle_scan_matches_numpy(seed, n, bump):
+    """The window the idle scan picks: the length (of 4, 8, 16, 32 held) whose mean's
+    neighbourhood energy, whitened by its noise, exceeds its limit by the most; 0 if none."""
+    rng = np.random.default_rng(seed)
+    k, window = 20, 32
+    xy = rng.uniform(0, 0.02, (k, 2))
+    fusion = FrameFusion(xy, lambda *a: None, lambda *a: None, window=window)
+    ok = rng.random(k) > 0.1
+    sigma = rng.uniform(0.5, 2.0, k)
+    rows = rng.normal(size=(n, k)) + bump * (np.arange(n)[:, None] >= n // 2) * (xy[:, :1].T > 0.01)
+    rows = np.where(ok, rows, 0.0)
+    held = rows[-window:]
+    buf = np.zeros((window, k))
+    for i, x in enumerate(held):
+        buf[i] = x
+    state = np.zeros(kern.STATE_SIZE)
+    state[kern.N], state[kern.HEAD] = len(held), len(held) % window
+    state[kern.SCALE2] = s2 = rng.uniform(0.3, 1.5)
+    limit = fusion._trigger_limit
+    windows = np.array([4, 8, 16, 32])
+    for quantised in (True, False):
+        best, want = 1.0, 0
+        for w in windows[windows <= len(held)]:
+            eff = w / s2 if not quantised else 1 / (max(1 - s2, 0) + s2 / w)
+            x = np.append(np.where(ok, held[-w:].mean(axis=0) * math.sqrt(eff) / sigma, 0.0), 0)
+            ratio = ((x[fusion._nbr] ** 2).sum(axis=1) / limit).max()
+            if ratio > best:
+                best, want = ratio, int(w)
+        got = kern.idle_scan(buf, state, ok, sigma, fusion._nbr, limit, windows, quantised)
+        assert got == want

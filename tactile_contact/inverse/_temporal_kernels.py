@@ -111,3 +111,47 @@ def held_step(
         state[N] = n + 1.0
     state[HEAD] = float((row + 1) % h)
     return 0
+
+
+@numba.njit(**_JIT)
+def idle_scan(buf, state, ok, sigma, nbr, limit, windows, quantised):  # pragma: no cover
+    """The window length worth a detector pass on an idle patch, or 0.
+
+    For each length w in ``windows`` (increasing, at most the frames held): the mean of the
+    newest w frames, whitened by its noise (σ_i over √(effective frames), as
+    temporal.FrameFusion.effective_frames), and each neighbourhood's
+    energy Σ x_i² against ``limit`` (K,) (a χ² level that noise alone exceeds rarely). A light
+    press held still concentrates its signal on a few taxels, and the energy of its mean grows
+    with the frames it fills: the length whose energy exceeds its limit by the most is
+    returned, so the detector runs on the mean that shows the press best, not every frame.
+    """
+    h, k = buf.shape
+    n = int(state[N])
+    head = int(state[HEAD])
+    acc = np.zeros(k)
+    x = np.zeros(k + 1)
+    best, best_w = 1.0, 0
+    done = 0
+    s2 = max(state[SCALE2], 1e-12)
+    for wi in range(windows.shape[0]):
+        w = int(windows[wi])
+        if w > n:
+            break
+        while done < w:
+            row = (head - 1 - done) % h
+            for i in range(k):
+                acc[i] += buf[row, i]
+            done += 1
+        eff = w / s2 if not quantised else 1.0 / (max(1.0 - s2, 0.0) + s2 / w)
+        g = math.sqrt(eff)
+        for i in range(k):
+            x[i] = acc[i] / w * g / sigma[i] if ok[i] else 0.0
+        for j in range(k):
+            s = 0.0
+            for c in range(nbr.shape[1]):
+                v = x[nbr[j, c]]
+                s += v * v
+            r = s / limit[j]
+            if r > best:
+                best, best_w = r, w
+    return best_w

@@ -33,9 +33,12 @@ frame joins the window, and the window is solved again when its length reaches 2
 … 50 frames and then every ``resolve_every`` frames; each such solve looks back over the
 window's frames for a step along the new result's directions (a change too small for one frame,
 say a light press that began while the patch read nothing) and drops the frames before it. An
-idle patch (the last result has no contact) solves the mean of its last 8, 16 or 32 frames in
-turn every ``idle_every`` frames instead: a touch too light for one frame is found with up to
-√32 of its single-frame statistic, at the reconstructor's stated false-contact rate per solve.
+idle patch (the last result has no contact) looks, every frame, at the means of its last 4, 8,
+16 and 32 frames, and solves the one whose energy in some neighbourhood stands out (a χ² level
+noise alone reaches in ≈ 1 % of frames; :func:`tactile_contact.inverse._temporal_kernels.
+idle_scan`), and the last 32 every ``idle_every`` frames whatever: a touch too light for one
+frame is found with up to √32 of its single-frame statistic, at the reconstructor's stated
+false-contact rate per solve, without a detector pass a frame.
 
 Costs and limits, measured in bench/bench_time.py and bench/bench_held.py (docs/bench/time.md):
 a moving contact is averaged over the frames its motion stays within noise, so the fused
@@ -70,12 +73,16 @@ WINDOW = 50
 #: The window is solved again when it reaches these lengths, then every RESOLVE_EVERY frames.
 RESOLVE_AT = frozenset((2, 3, 4, 6, 8, 10, 12, 16, 20, 25, 32, 40, 50))
 RESOLVE_EVERY = 25
-#: An idle patch solves the mean of its last IDLE_WINDOWS frames in turn every IDLE_EVERY
-#: frames (a detector pass each, ≈ 20–35 µs). A window of 8 alone never finds a press whose
-#: frames reach a third of the detection threshold; 32 alone dilutes a press that began
-#: within it with the frames before.
-IDLE_EVERY = 4
-IDLE_WINDOWS = (8, 16, 32)
+#: An idle patch scans the means of its last IDLE_WINDOWS frames every frame, and solves one
+#: when its neighbourhood energy passes the level noise alone reaches in IDLE_TRIGGER of the
+#: frames (a detector pass, ≈ 20–35 µs), at most every IDLE_HOLDOFF frames, and the last 32
+#: every IDLE_EVERY frames whatever. (A window of 8 alone never finds a press whose frames
+#: reach a third of the detection threshold; 32 alone dilutes a press that began within it;
+#: cycling 8, 16, 32 every 4 frames missed 7 of 12 presses of 0.5 N after 10 frames.)
+IDLE_WINDOWS = (4, 8, 16, 32)
+IDLE_TRIGGER = 1e-2
+IDLE_HOLDOFF = 2
+IDLE_EVERY = 16
 #: False-change rate of each test per frame (a false change costs one solve and restarts the
 #: window).
 ALPHA = 1e-3
@@ -126,7 +133,7 @@ class FrameFusion:
         rounding: the rounding error of one 8-bit reading [m] (one count/√12): the least
             frame-to-frame scatter the change tests assume for quantised readings.
         window, resolve_every, idle_every, idle_windows, alpha, reach: as the module
-            constants.
+            constants (IDLE_WINDOWS).
     """
 
     def __init__(
@@ -157,14 +164,16 @@ class FrameFusion:
         self._sigma_seen: tuple[object, bool] = (None, False)
         self.window, self.resolve_every = int(window), int(resolve_every)
         self.idle_every, self.alpha = int(idle_every), alpha
-        self.idle_windows = tuple(min(int(w), self.window) for w in idle_windows)
-        self._idle_turn = 0
+        self._idle_windows = np.array(sorted({min(int(w), self.window) for w in idle_windows}))
+        self._since_check = 0
         dist = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
         groups = [np.flatnonzero(row <= reach) for row in dist]
         width = max(len(g) for g in groups)
         self._nbr = np.array([np.pad(g, (0, width - len(g)), constant_values=k) for g in groups])
         # Bonferroni over the K neighbourhoods: the local tests together keep the rate alpha.
         self._local_limit = np.array([chi2.isf(alpha / k, len(g)) for g in groups])
+        trigger = IDLE_TRIGGER / (k * len(idle_windows))
+        self._trigger_limit = np.array([chi2.isf(trigger, len(g)) for g in groups])
         self._buf = np.zeros((self.window, k))
         self._total = np.zeros(k)
         self._state = np.zeros(kern.STATE_SIZE)
@@ -262,12 +271,9 @@ class FrameFusion:
             due = n in RESOLVE_AT if n < self.window else self._since >= self.resolve_every
             if due or missing:
                 return self._resolve(sigma, want_traction, want_deflection)
-        elif self._since >= self.idle_every:
-            self._since = 0
-            w = min(n, self.idle_windows[self._idle_turn % len(self.idle_windows)])
-            self._idle_turn += 1
-            found = self._call(self._mean(w), sigma, w, False, False)
-            if found.in_contact:  # type: ignore[attr-defined]
+        else:
+            found = self._idle_check(sigma)
+            if found is not None:
                 self._adopt(found, sigma)
                 return self._resolve(sigma, want_traction, want_deflection)
         self.counts.held += 1
@@ -288,6 +294,30 @@ class FrameFusion:
         )
 
     # ------------------------------------------------------------------------------------
+
+    def _idle_check(self, sigma: NDArray) -> object | None:
+        """An idle patch's look for a press too light for one frame (IDLE_WINDOWS): the
+        contact the detector finds on the mean the scan picks, or None."""
+        self._since_check += 1
+        if self._since_check <= IDLE_HOLDOFF:
+            return None
+        w = kern.idle_scan(
+            self._buf,
+            self._state,
+            self._ok,
+            sigma,
+            self._nbr,
+            self._trigger_limit,
+            self._idle_windows,
+            self._quantised,
+        )
+        if w == 0 and self._since_check >= self.idle_every:
+            w = min(self.frames, int(self._idle_windows[-1]))
+        if w < 2:
+            return None
+        self._since_check = 0
+        found = self._call(self._mean(int(w)), sigma, int(w), False, False)
+        return found if found.in_contact else None  # type: ignore[attr-defined]
 
     def _call(self, d: NDArray, sigma: NDArray, n: int, want_t: bool, want_d: bool) -> object:
         eff = self.effective_frames(n)
