@@ -363,3 +363,46 @@ def test_idle_scan_matches_numpy(seed, n, bump):
                 best, want = ratio, int(w)
         got = kern.idle_scan(buf, state, ok, sigma, fusion._nbr, limit, windows, quantised)
         assert got == want
+
+
+@given(seed=st.integers(0, 2**31 - 1), m=st.integers(1, 8), dup=st.booleans())
+def test_orthonormal_spans_what_numpy_qr_spans(seed, m, dup):
+    rng = np.random.default_rng(seed)
+    k = 30
+    a = rng.normal(size=(k, m))
+    if dup and m > 1:
+        a[:, -1] = 2.0 * a[:, 0]  # a dependent column is dropped
+    ok = rng.random(k) > 0.2
+    sigma = rng.uniform(0.5, 2.0, k)
+    q = np.zeros((k, m))
+    kept = kern.orthonormal(a, ok, sigma, q)
+    w = np.where(ok[:, None], a / sigma[:, None], 0.0)
+    assert kept == np.linalg.matrix_rank(w)
+    qk = q[:, :kept]
+    assert np.allclose(qk.T @ qk, np.eye(kept), atol=1e-10)
+    ref = np.linalg.qr(w)[0][:, :kept] if not (dup and m > 1) else np.linalg.qr(w[:, :-1])[0]
+    # The same subspace: projecting either basis on the other loses nothing.
+    assert np.allclose(qk @ (qk.T @ ref), ref, atol=1e-9)
+    assert np.all(q[~ok, :kept] == 0.0)
+
+
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(3, 20), step=st.floats(0.0, 3.0))
+def test_best_split_against_numpy(seed, n, step):
+    rng = np.random.default_rng(seed)
+    k, m, window = 15, 3, 20
+    rows = rng.normal(size=(n, k)) + step * (np.arange(n) >= n // 2)[:, None]
+    buf = np.zeros((window, k))
+    buf[:n] = rows
+    state = np.zeros(kern.STATE_SIZE)
+    state[kern.N], state[kern.HEAD] = n, n % window
+    total = rows.sum(axis=0)
+    sigma = rng.uniform(0.5, 2.0, k)
+    q = np.linalg.qr(rng.normal(size=(k, m)))[0]
+    y = ((rows - total / n) / sigma) @ q
+    stats = [
+        j * (n - j) / n * np.sum((y[:j].mean(axis=0) - y[j:].mean(axis=0)) ** 2)
+        for j in range(1, n)
+    ]
+    old, stat = kern.best_split(buf, state, total, sigma, q)
+    assert stat == pytest.approx(max(stats), rel=1e-9)
+    assert stats[old - 1] == pytest.approx(max(stats), rel=1e-9)

@@ -14,6 +14,8 @@ import math
 import numba
 import numpy as np
 
+from tactile_contact.inverse._round_kernels import predict
+
 _JIT = {"cache": True, "nogil": True}
 
 #: The robust scale: the mean of the smallest TRIM share of the squared residuals, over that
@@ -155,3 +157,93 @@ def idle_scan(buf, state, ok, sigma, nbr, limit, windows, quantised):  # pragma:
             if r > best:
                 best, best_w = r, w
     return best_w
+
+
+@numba.njit(**_JIT)
+def round_jacobian(table, t0, dt, step, xy, contacts, h_xy, h_t):  # pragma: no cover
+    """(K, 4·C) derivatives [m per unit] of the readings at ``xy`` (K, 2) [m] of round
+    contacts ``contacts`` (C, 5): force [N], centre x, y [m], log radius, family; in each
+    one's log force, x, y and log radius (forward differences of steps ``h_xy`` [m], ``h_t``
+    through :func:`tactile_contact.inverse._round_kernels.predict`)."""
+    k = xy.shape[0]
+    out = np.empty((k, 4 * contacts.shape[0]))
+    for c in range(contacts.shape[0]):
+        force, x, y, t = contacts[c, 0], contacts[c, 1], contacts[c, 2], contacts[c, 3]
+        f = int(contacts[c, 4])
+        base = predict(table, f, t0, dt, step, xy, x, y, t, force)
+        px = predict(table, f, t0, dt, step, xy, x + h_xy, y, t, force)
+        py = predict(table, f, t0, dt, step, xy, x, y + h_xy, t, force)
+        pt = predict(table, f, t0, dt, step, xy, x, y, t + h_t, force)
+        for i in range(k):
+            out[i, 4 * c] = base[i]
+            out[i, 4 * c + 1] = (px[i] - base[i]) / h_xy
+            out[i, 4 * c + 2] = (py[i] - base[i]) / h_xy
+            out[i, 4 * c + 3] = (pt[i] - base[i]) / h_t
+    return out
+
+
+@numba.njit(**_JIT)
+def orthonormal(a, ok, sigma, q):  # pragma: no cover - compiled
+    """The columns of ``a`` (K, m) over ``sigma`` (K,) at the ``ok`` taxels (0 elsewhere),
+    orthonormalised into ``q`` (K, m) by modified Gram–Schmidt; columns that add less than
+    1e-9 of their norm are dropped. Returns the columns kept (the first ones of q)."""
+    k, m = a.shape
+    kept = 0
+    for j in range(m):
+        v = np.zeros(k)
+        norm0 = 0.0
+        for i in range(k):
+            if ok[i]:
+                v[i] = a[i, j] / sigma[i]
+                norm0 += v[i] * v[i]
+        for c in range(kept):
+            dot = 0.0
+            for i in range(k):
+                dot += q[i, c] * v[i]
+            for i in range(k):
+                v[i] -= dot * q[i, c]
+        norm = 0.0
+        for i in range(k):
+            norm += v[i] * v[i]
+        if norm0 == 0.0 or norm <= 1e-18 * norm0:
+            continue
+        s = 1.0 / math.sqrt(norm)
+        for i in range(k):
+            q[i, kept] = v[i] * s
+        kept += 1
+    return kept
+
+
+@numba.njit(**_JIT)
+def best_split(buf, state, total, sigma, q):  # pragma: no cover - compiled
+    """(old frames k, χ² statistic) of the most likely step in the window along ``q``
+    (K, m): for every split of the n frames into the k oldest and the rest, k(n−k)/n·‖ȳ_new −
+    ȳ_old‖², y the frames' whitened projections on q (σ ``sigma`` (K,))."""
+    h, kk = buf.shape
+    n = int(state[N])
+    head = int(state[HEAD])
+    m = q.shape[1]
+    y = np.zeros((n, m))
+    for j in range(n):
+        row = (head - n + j) % h
+        for i in range(kk):
+            r = (buf[row, i] - total[i] / n) / sigma[i]
+            if r != 0.0:
+                for c in range(m):
+                    y[j, c] += q[i, c] * r
+    run = np.zeros(m)
+    tot = np.zeros(m)
+    for j in range(n):
+        for c in range(m):
+            tot[c] += y[j, c]
+    best, best_k = -1.0, 0
+    for k in range(1, n):
+        s = 0.0
+        for c in range(m):
+            run[c] += y[k - 1, c]
+            d = run[c] / k - (tot[c] - run[c]) / (n - k)
+            s += d * d
+        stat = k * (n - k) / n * s
+        if stat > best:
+            best, best_k = stat, k
+    return best_k, best

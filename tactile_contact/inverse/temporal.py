@@ -63,7 +63,7 @@ from scipy.stats import chi2
 
 from tactile_contact.inverse import _temporal_kernels as kern
 from tactile_contact.inverse.readings import Frame
-from tactile_contact.inverse.round_contact import FAMILIES, RoundFit, RoundTables
+from tactile_contact.inverse.round_contact import FAMILIES, RoundTables
 
 if TYPE_CHECKING:
     from tactile_contact.inverse.reconstruction import Reconstructor
@@ -387,14 +387,10 @@ class FrameFusion:
         if jac is None or jac.shape[1] == 0:
             self._q = np.zeros((k, 0))
             return
-        ok = self._ok
-        a = jac[ok] / self._scaled(sigma)[ok, None]
-        q, r = np.linalg.qr(a)
-        d = np.abs(np.diag(r))
-        keep = d > 1e-9 * d.max() if d.size and d.max() > 0 else np.zeros(0, bool)
-        self._q = np.zeros((k, int(keep.sum())))
-        self._q[ok] = q[:, keep]
-        self._limits[1] = _limit(self.alpha, self._q.shape[1])
+        q = np.zeros(jac.shape)
+        kept = kern.orthonormal(np.ascontiguousarray(jac), self._ok, self._scaled(sigma), q)
+        self._q = np.ascontiguousarray(q[:, :kept])
+        self._limits[1] = _limit(self.alpha, kept)
 
     def _trim_before_change(self, sigma: NDArray) -> bool:
         """Drop the frames before the most likely step of the window along self._q, if the
@@ -402,19 +398,14 @@ class FrameFusion:
         n, m = self.frames, self._q.shape[1]
         if m == 0 or n < 3:
             return False
-        rows = self._rows(n)
-        y = ((self._buf[rows] - self._total / n) / self._scaled(sigma)) @ self._q
-        run = np.cumsum(y, axis=0)
-        old = np.arange(1, n)[:, None]
-        before = run[:-1] / old
-        after = (run[-1] - run[:-1]) / (n - old)
-        stat = (old[:, 0] * (n - old[:, 0]) / n) * np.sum((before - after) ** 2, axis=1)
-        best = int(np.argmax(stat))
-        if stat[best] <= _limit(self.alpha / (n - 1), m):
+        old, stat = kern.best_split(
+            self._buf, self._state, self._total, self._scaled(sigma), self._q
+        )
+        if stat <= _limit(self.alpha / (n - 1), m):
             return False
-        keep = n - (best + 1)
+        keep = n - old
         self._state[kern.N] = float(keep)
-        self._total[:] = self._buf[rows[-keep:]].sum(axis=0)
+        self._total[:] = self._buf[self._rows(keep)].sum(axis=0)
         self.counts.changes["step"] = self.counts.changes.get("step", 0) + 1
         return True
 
@@ -446,26 +437,20 @@ def round_jacobian(
     """(K, 4·C) derivatives [m per unit] of the readings of round ``contacts``
     (:class:`tactile_contact.inverse.summary.Contact`, profile ``punch`` or ``hertz``) in
     each one's log force, centre x, y [m] and log radius; None if one is not a round contact
-    (a grid field) or there are none."""
-    if not contacts:
+    (a grid field) or there are none. (Compiled: it runs with every solve of a held scene.)"""
+    if not contacts or any(c.profile not in FAMILIES for c in contacts):
         return None
-    cols = []
-    for c in contacts:
-        if c.profile not in FAMILIES:
-            return None
-        fam = FAMILIES.index(c.profile)
-        x, y = c.center
-
-        def reading(dx: float = 0.0, dy: float = 0.0, grow: float = 1.0, c=c, fam=fam, x=x, y=y):
-            fit = RoundFit(c.force, (x + dx, y + dy), fam, c.radius * grow, 0.0)
-            return tables.predict(fit, taxel_xy)
-
-        base = reading()
-        cols.append(base)  # ∂/∂ log F
-        cols.append((reading(dx=STEP_XY) - base) / STEP_XY)
-        cols.append((reading(dy=STEP_XY) - base) / STEP_XY)
-        cols.append((reading(grow=1.0 + STEP_RADIUS) - base) / math.log1p(STEP_RADIUS))
-    return np.column_stack(cols)
+    params = np.array(
+        [
+            (c.force, c.center[0], c.center[1], math.log(c.radius), FAMILIES.index(c.profile))
+            for c in contacts
+        ]
+    )
+    t0, dt = tables.log_grid
+    xy = np.ascontiguousarray(taxel_xy, dtype=np.float64)
+    return kern.round_jacobian(
+        tables.table, t0, dt, tables.step, xy, params, STEP_XY, math.log1p(STEP_RADIUS)
+    )
 
 
 @functools.lru_cache(maxsize=512)
