@@ -280,6 +280,27 @@ class FrameFusion:
         self.last = "held"
         return res
 
+    def compile(self) -> None:
+        """Build (or load from numba's disk cache) the compiled steps now, on this patch's
+        shapes, not in the first frames of a stream (seconds on a cold cache). No state of
+        the fusion changes."""
+        k = len(self._total)
+        d, ok, sigma = np.zeros(k), np.ones(k, dtype=bool), np.ones(k)
+        buf, total, state = self._buf.copy(), np.zeros(k), self._state.copy()
+        state[kern.N], state[kern.HEAD] = 1.0, 1.0
+        q = np.zeros((k, 1))
+        q[0, 0] = 1.0
+        limits = np.full(2, np.inf)
+        kern.held_step(d, ok, ok, sigma, buf, total, state, self._nbr, self._local_limit, q, limits)
+        kern.held_step(
+            d, ok, ok, sigma, buf, total, state, self._nbr, self._local_limit, q[:, :0], limits
+        )
+        kern.idle_scan(
+            buf, state, ok, sigma, self._nbr, self._trigger_limit, self._idle_windows, True
+        )
+        kern.best_split(buf, state, total, sigma, q)
+        kern.orthonormal(q, ok, sigma, np.zeros((k, 1)))
+
     def step_frame(self, frame: Frame, want_traction: bool, want_deflection: bool) -> Any:
         """:meth:`step` of a reconstructor's :class:`~tactile_contact.inverse.readings.Frame`
         (the context its solve gets back)."""
@@ -428,7 +449,15 @@ def reconstructor_fusion(recon: Reconstructor) -> FrameFusion:
         return round_jacobian(recon._round, recon.taxel_xy, result.contacts)
 
     rounding = recon.readings.count_sigma / math.sqrt(2.0)  # one count/√12
-    return FrameFusion(recon.taxel_xy, solve, directions, rounding)
+    fusion = FrameFusion(recon.taxel_xy, solve, directions, rounding)
+    fusion.compile()
+    if recon._round is not None:  # (the Jacobian's kernel, with the bundle's tables)
+        from tactile_contact.inverse.summary import Contact
+
+        centre = recon.taxel_xy.mean(axis=0)
+        one = Contact(1.0, (float(centre[0]), float(centre[1])), 2e-3, FAMILIES[1])
+        round_jacobian(recon._round, recon.taxel_xy, (one,))
+    return fusion
 
 
 def round_jacobian(
