@@ -48,7 +48,9 @@ def add_row(rows: ContactRows, pipe: Any, stamp_ns: int, result: Any) -> None:
         rows.cop_x.append(0.0)
         rows.cop_y.append(0.0)
         return
-    held = getattr(result, "held", False) or result.solver == "held"
+    # HELD: the fusion (fuse_frames) found the readings unchanged and republished its result
+    fusion = getattr(pipe.recon, "fusion", None)
+    held = fusion is not None and fusion.last == "held"
     rows.states.append(ContactArray.HELD if held else ContactArray.CONTACT)
     rows.total_force.append(float(result.total_force))
     rows.cop_x.append(float(result.cop[0]))

@@ -5,7 +5,9 @@
   patches' cycles staggered so that they are not all in the same phase;
 - ``typical``: four patches in contact — two sliding as above, two held still (the same
   sphere pressed on the taxel nearest the patch centre and left there, the force constant) —
-  and every other patch idle (noise only): a hand on an arm, a leg resting on a table.
+  and every other patch idle (noise only): a hand on an arm, a leg resting on a table;
+- ``held``: every patch pressed and held still; ``idle``: nothing touches the skin (the cost of
+  each kind of patch-frame alone).
 
 :func:`scene_indentations` gives, per patch, the :class:`~tactile_contact.sim.simulator.
 Indentation` (None: idle) and the time offset of its cycle (:func:`scenario_indentation`:
@@ -24,7 +26,7 @@ from tactile_contact.model.indenters import HertzSphere
 from tactile_contact.model.layout import PatchLayout
 from tactile_contact.sim.simulator import Indentation
 
-SCENES = ("sliding", "typical")
+SCENES = ("sliding", "typical", "held", "idle")
 #: Force [N], sphere radius [m] and cycle [s] of every press.
 FORCE_N, SPHERE_RADIUS_M, CYCLE_S = 2.0, 6e-3, 4.0
 #: The stagger of the patches' cycles [s per patch index].
@@ -119,8 +121,9 @@ def scene_indentations(patches: list[Any], scene: str) -> dict[str, PatchScene]:
         raise ValueError(f"unknown scene {scene!r} (known: {', '.join(SCENES)})")
     sphere = HertzSphere(SPHERE_RADIUS_M)
     names = [p.name for p in patches]
-    if scene == "sliding":
-        sliding, held = names, []
+    if scene in ("sliding", "held", "idle"):
+        sliding = names if scene == "sliding" else []
+        held = names if scene == "held" else []
     else:
         sliding, held = typical_patches(names)
     out = {}
