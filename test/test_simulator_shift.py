@@ -6,6 +6,7 @@ stream reading the frames back (ΔC within one count of the shift, saturated cha
 
 from __future__ import annotations
 
+import time
 import uuid
 
 import can
@@ -178,3 +179,71 @@ def test_driver_stream_reads_the_shift_back_and_flags_saturation(tmp_path, shift
         assert np.all(np.abs(np.asarray(f.delta_c)[ok] - t.delta_c[ok]) <= 1.5 * count + 5e-15)
     clipped = np.any([t.out_of_range for _, t in late], axis=0)
     assert clipped.any() == (shift == 0)
+
+
+@pytest.mark.ros
+def test_simulator_node_takes_the_hosts_shift_from_the_bus(ros_context) -> None:
+    """The skin_simulator node, pressing on a virtual bus: a SET_TRIANG_CFG with shift 3 sent
+    by the host (the driver's codec) to the pressed triangle changes what it sends: its frames
+    on the bus then carry the firmware's values at shift 3, the other triangles' at shift 2."""
+    from pathlib import Path
+
+    from rclpy.parameter import Parameter
+
+    from tactile_contact.canbus.codec import FRAME_A, decode_frame
+    from tactile_contact.ros.skin_simulator import SkinSimulatorNode
+
+    layout = Path(__file__).resolve().parents[1] / "config" / "hexagon_patch.yaml"
+    channel = f"shift-node-{uuid.uuid4().hex}"
+    params = {
+        "layout": str(layout),
+        "interface": "virtual",
+        "channel": channel,
+        "scenario": "press",
+        "start_delay_s": 0.0,
+        "cycle_s": 30.0,
+        "period_ms": 20,
+        "noise_cdc": 0.0,
+        "force_n": 3.0,
+    }
+    overrides = [Parameter(k, value=v) for k, v in params.items()]
+    with can.Bus(interface="virtual", channel=channel) as host:
+        node = SkinSimulatorNode(context=ros_context, parameter_overrides=overrides)
+        try:
+            held = node.sim.period(node.indentation, 1.0).truth.delta_c.reshape(-1, 12)
+            pressed = node.sim.modules[int(np.argmax(held.max(axis=1)))][1]
+            host.send(codec.set_triangle_config(0, pressed, pressed, 3, True, 0).to_message())
+            deadline = time.monotonic() + 5.0
+            while node.commands_applied == 0 and time.monotonic() < deadline:
+                time.sleep(0.02)
+            assert node.commands_applied == 1
+            assert node.sim.shift.tolist() == [3 if t == pressed else 2 for _, t in MODS6]
+            time.sleep(0.8)  # past the 0.5 s ramp: the press held
+            while host.recv(timeout=0.0) is not None:  # frames sent before: dropped
+                pass
+            time.sleep(0.1)
+            frames = [decode_frame(m.arbitration_id, bytes(m.data)) for m in _drain(host)]
+            tr = node.sim.period(node.indentation, 1.0).truth  # held: the same values
+        finally:
+            node.destroy_node()
+    got: dict[tuple[int, int], bytes] = {}
+    for f in frames:
+        got[(f.triangle, f.kind)] = f.values
+    assert len(got) == 12, "frames A and B of all six triangles"
+    cdc = np.rint(tr.delta_c / SensorParams().farad_per_count).astype(int)
+    for m, (_, tri) in enumerate(node.sim.modules):
+        shift = 3 if tri == pressed else 2
+        want = [firmware_value(int(c), 240, shift)[0] for c in cdc[12 * m : 12 * m + 12]]
+        sent = list(got[(tri, FRAME_A)]) + list(got[(tri, 0xC0)])
+        assert sent == want, (tri, sent, want)
+    assert max(240 - v for v in got[(pressed, FRAME_A)] + got[(pressed, 0xC0)]) >= 5
+
+
+MODS6 = [(0, t) for t in range(6)]  # the hexagon's modules: board 0, triangles 0..5
+
+
+def _drain(bus: can.BusABC) -> list[can.Message]:
+    out = []
+    while (m := bus.recv(timeout=0.05)) is not None:
+        out.append(m)
+    return out

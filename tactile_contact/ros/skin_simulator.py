@@ -16,6 +16,11 @@ baselines unloaded), repeated every ``cycle_s`` when ``loop``:
 - ``sweep``: ramp at one side of the patch, slide along x across it (through that taxel)
   while holding, release;
 - ``idle``: no contact (noise and drift only).
+
+Like the boards, the simulated modules take the host's SET_TRIANG_CFG and SET_BRD_CFG commands
+from the bus (a driver's configuration: shift, enable, noLoad;
+:meth:`tactile_contact.sim.simulator.SkinSimulator.apply_command`) before each period; the
+8-bit values clip at 0 and 255 with their out-of-range bits (docs/layout.md, "Which shift").
 """
 
 from __future__ import annotations
@@ -159,6 +164,7 @@ class SkinSimulatorNode(Node):
             self.truth_pub = self.truth_pubs[self.patch.name]
             self.periods_sent = 0
             self.send_errors = 0
+            self.commands_applied = 0
             self._thread = threading.Thread(target=self._run, name="skin_sim", daemon=True)
             self._thread.start()
             names = ", ".join(
@@ -183,6 +189,7 @@ class SkinSimulatorNode(Node):
         while not self._stop.is_set():
             t = k * self.period_s
             try:
+                self._apply_commands()
                 for pl, sim, indentation in self.simulated:
                     period = sim.period(indentation, t)
                     # Stamped when sent, as a bus would: if the simulation falls behind its
@@ -202,6 +209,15 @@ class SkinSimulatorNode(Node):
                 )
             k += 1
             self._stop.wait(max(0.0, mono0 + k * self.period_s - time.monotonic()))
+
+    def _apply_commands(self) -> None:
+        """The host commands received since the last period, applied as the addressed boards
+        would (shift, enable, noLoad); other frames are ignored. Never waits."""
+        assert self._bus is not None
+        while (msg := self._bus.recv(timeout=0.0)) is not None:
+            for _, sim, _ in self.simulated:
+                if sim.apply_command(msg):
+                    self.commands_applied += 1
 
     def _publish_truth(self, period: SimPeriod, patch: PatchLayout | None = None) -> None:
         patch = patch or self.patch
