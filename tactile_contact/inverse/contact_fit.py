@@ -148,7 +148,12 @@ class ContactFit:
                     fits = [single]
                     followed = Followed(single, previous.misfit, previous.age + 1)
         fitter = ContactFitter(
-            self.tables, self.count_sigma, self.contact_threshold, s, self.max_contacts
+            self.tables,
+            self.count_sigma,
+            self.contact_threshold,
+            s,
+            self.max_contacts,
+            precise=frame.scale_free,
         )
         if fits is None:
             if start is None:

@@ -18,7 +18,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from tactile_contact.inverse.round_contact import RoundFit, RoundTables, fit_round_contact
+from tactile_contact.inverse.round_contact import (
+    RoundFit,
+    RoundTables,
+    fit_round_contact,
+    hop_round_contact,
+)
+from tactile_contact.model.grids import distance_to_points
 
 #: Taxels closer than this [m] seed one contact between them: the 5.5 mm taxel pitch cannot
 #: tell two contacts that close apart.
@@ -37,6 +43,21 @@ MULTI_CONTACT_EVIDENCE = 25.0
 START_REACH = 12.0e-3
 #: The second search start is used only when it is farther than this [m] from the first.
 START_APART = 1.5e-3
+#: Taxels within this distance [m] of a search start are fitted (round_contact's ``near``).
+REACH = 0.015
+#: The search's check (ContactFitter.unexplained) takes the noise from the taxels beyond
+#: REACH when there are at least this many.
+FAR_TAXELS = 6
+#: ... and at least this share of the largest |reading| (precise readings: model error).
+PRECISE_FLOOR = 1.0e-3
+#: Relative model error [-] the search's check allows: the tables against a finer forward
+#: model err by 0.1–1 % away from a contact's edge (more at a point taxel on a punch's edge,
+#: which then costs a thorough search for nothing).
+SEARCH_MODEL_ERROR = 0.01
+#: Readings within this distance [m] of the largest |reading| weigh the magnitude centroid (a
+#: start): the bulge ring around a contact reaches about 12 mm; beyond, idle taxels' noise
+#: only pulls it towards the patch's middle.
+MAGNITUDE_REACH = 20.0e-3
 
 
 @dataclass(frozen=True)
@@ -49,16 +70,26 @@ class ContactFitter:
             model: a reading and its baseline, each rounded to a count); the unit of
             MULTI_CONTACT_EVIDENCE.
         contact_threshold: compression [m] above which a taxel reads contact.
-        sigma: per-taxel error [m] the posterior assumes, or None to report least-squares
-            points.
+        sigma: per-taxel error [m] (scalar or per taxel) weighting the fit, or None for equal
+            weights; with ``precise`` False also the least noise the search's check assumes.
         max_contacts: separate contacts fitted at most.
+        precise: the readings are precise values of unknown noise (not 8-bit counts): the
+            search's check (:meth:`unexplained`) takes their noise from the taxels the fit
+            leaves out, however small.
+        estimate_noise: the caller passed no noise level: separate contacts must win by
+            MULTI_CONTACT_EVIDENCE of the noise the single contact leaves on the far taxels
+            (:meth:`far_noise`) when that exceeds ``count_sigma``, and seed above as many
+            times the contact threshold (with 1 count of noise, the assumed 0.4 let noise
+            seed and win extra contacts).
     """
 
     tables: RoundTables
     count_sigma: float
     contact_threshold: float
-    sigma: float | None = None
+    sigma: float | NDArray | None = None
     max_contacts: int = 3
+    precise: bool = False
+    estimate_noise: bool = False
 
     def fit(
         self, xy: NDArray, d: NDArray, cop: NDArray | None
@@ -68,12 +99,27 @@ class ContactFitter:
         None when no round contact has a positive force."""
         start = self.starts(cop, xy, d)
         single = fit_round_contact(self.tables, xy, d, start, sigma=self.sigma)
+        if single is not None and self.unexplained(single, xy, d, start):
+            # A false valley, or a contact the usual search did not reach: search wider.
+            for again in (
+                fit_round_contact(self.tables, xy, d, start, sigma=self.sigma, thorough=True),
+                hop_round_contact(self.tables, xy, d, single, sigma=self.sigma),
+            ):
+                if again is not None and self._misfit(again, xy, d) < self._misfit(single, xy, d):
+                    single = again
         fits = [single] if single is not None else []
         residual = single.residual if single is not None else math.inf
+        level = self.count_sigma
+        if self.estimate_noise and single is not None:
+            level = max(level, self.far_noise([single], xy, d) or 0.0)
         # Separate contacts must lower the squared residual by the evidence margin: a single
         # contact already within it leaves nothing to win (and skips 4-5 more fits).
-        margin = MULTI_CONTACT_EVIDENCE * self.count_sigma**2
-        seeds = [xy[i] for i in self.seeds(xy, d)] if residual**2 > margin else []
+        margin = MULTI_CONTACT_EVIDENCE * level**2
+        seeds = (
+            [xy[i] for i in self.seeds(xy, d, level / self.count_sigma)]
+            if residual**2 > margin
+            else []
+        )
         if len(seeds) > 1:
             # Model choice on least-squares points (their residuals are those of the
             # predictions subtracted); the posterior then reports each contact.
@@ -93,20 +139,78 @@ class ContactFitter:
                         fits.append(post if post is not None else f)
         return (fits, residual) if fits else None
 
+    def unexplained(self, fit: RoundFit, xy: NDArray, d: NDArray, start: NDArray) -> bool:
+        """Whether the least-squares contact ``fit`` leaves readings unexplained by noise: its
+        χ² over the taxels it was fitted to (within REACH of a start) exceeds
+        :func:`chi2_limit`, against their noise (``sigma``, at least; or, ``precise``, only)
+        as the taxels left out read it after the fit (their mean square residual, when at
+        least FAR_TAXELS) and a relative model error of SEARCH_MODEL_ERROR.
+
+        Why: the search ends in a false valley now and then (a contact's size, family and
+        centre trade off along narrow valleys), and there its residual stands above the
+        noise; the taxels beyond the fit's reach measure that noise without being fitted."""
+        pred = self.tables.predict(fit, xy)
+        res = pred - d
+        fitted = distance_to_points(xy, start) <= REACH
+        far = ~fitted
+        noise2 = np.zeros(len(d))
+        if self.sigma is not None and not self.precise:
+            noise2 = np.broadcast_to(np.square(self.sigma), d.shape)
+        if far.sum() >= FAR_TAXELS:
+            noise2 = np.maximum(noise2, float(np.mean(np.square(res[far]))))
+        # Precise readings of a contact the tables model exactly leave a zero residual: some
+        # noise floor keeps the test finite.
+        noise2 = np.maximum(noise2, (PRECISE_FLOOR * float(np.abs(d).max())) ** 2)
+        n = int(fitted.sum())
+        return chi2(pred[fitted], d[fitted], np.sqrt(noise2[fitted]), SEARCH_MODEL_ERROR) > (
+            chi2_limit(n)
+        )
+
+    def far_noise(self, fits: list[RoundFit], xy: NDArray, d: NDArray) -> float | None:
+        """RMS residual [m] of the contacts ``fits`` over the taxels farther than REACH from
+        each (at least FAR_TAXELS of them; else None): the readings' noise, measured where no
+        contact is fitted (the residual there is not pulled down by the fit)."""
+        centres = np.array([f.center for f in fits]).reshape(-1, 2)
+        far = distance_to_points(xy, centres) > REACH
+        if far.sum() < FAR_TAXELS:
+            return None
+        res = self.predicted(fits, xy)[far] - d[far]
+        return float(np.sqrt(np.mean(res * res)))
+
+    def _misfit(self, fit: RoundFit, xy: NDArray, d: NDArray) -> float:
+        """Σ ((prediction − reading)/σ)² of ``fit`` over every taxel (σ: ``sigma``, or 1)."""
+        res = self.tables.predict(fit, xy) - d
+        return float(np.sum(np.square(res if self.sigma is None else res / self.sigma)))
+
     def starts(self, cop: NDArray | None, xy: NDArray, d: NDArray) -> NDArray[np.float64]:
         """(S, 2) centres [m] to search a single round contact around: ``cop`` (the detector's
-        best place, or the grid solution's centre of pressure), the strongest taxel, and the
-        centroid of the readings above the contact threshold within START_REACH of it, each
-        kept when more than START_APART from those before. A broad flat contact reads as a ring
-        of taxels around a quiet centre: its detector place or grid support can sit on one side
-        of the ring, and a 6 mm punch over a taxel was fitted 2 mm off from there alone."""
+        best place, or the grid solution's centre of pressure), the strongest taxel (when it
+        reads above the contact threshold), the centroid of the readings above the threshold
+        within START_REACH of it, and the centroid of the readings' magnitudes within
+        MAGNITUDE_REACH of the largest, each kept when more than START_APART from those
+        before.
+
+        Why several: a broad flat contact reads as a ring of taxels around a quiet centre, and
+        its detector place or grid support can sit on one side of the ring (a 6 mm punch over a
+        taxel was fitted 2 mm off from there alone). Why the magnitudes: a small contact
+        between taxels reads negative all round (no strongest taxel under it), and the bulge
+        ring is centred on it. On 200 noise-free random presses (point taxels, their own
+        tables) the magnitude centroid was within 2.9 mm of the centre, the detector's place up
+        to 8.8 mm off; with it 4 fits ended in a false valley, without it 13. Its small
+        readings count: weighting only those above the threshold lost most of the gain."""
         strongest = int(np.argmax(d))
         out = [] if cop is None else [np.asarray(cop, dtype=np.float64)]
-        out.append(xy[strongest])
+        if d[strongest] > self.contact_threshold or cop is None:
+            out.append(xy[strongest])
         off = xy - xy[strongest]
         up = (d > self.contact_threshold) & (np.hypot(off[:, 0], off[:, 1]) <= START_REACH)
         if up.any():
             out.append((d[up] @ xy[up]) / d[up].sum())
+        size = np.abs(d)
+        off = xy - xy[int(np.argmax(size))]
+        around = np.hypot(off[:, 0], off[:, 1]) <= MAGNITUDE_REACH
+        if size[around].sum() > 0:
+            out.append((size[around] @ xy[around]) / size[around].sum())
         kept: list[NDArray] = []
         for c in out:
             if all(math.hypot(c[0] - k[0], c[1] - k[1]) > START_APART for k in kept):
@@ -138,14 +242,15 @@ class ContactFitter:
                 fits[k] = again
         return fits
 
-    def seeds(self, xy: NDArray, d: NDArray) -> list[int]:
+    def seeds(self, xy: NDArray, d: NDArray, level: float = 1.0) -> list[int]:
         """Taxels (indices into xy) where separate contacts may press, strongest first: those
-        reading above CONTACT_SEED_LEVEL contact thresholds that read most within
-        CONTACT_SEPARATION of themselves (ties to the first) and are parted from every
-        stronger one by a dip (:func:`dip_between`), at most ``max_contacts``."""
+        reading above CONTACT_SEED_LEVEL contact thresholds (times ``level`` ≥ 1, the
+        readings' noise over the assumed one) that read most within CONTACT_SEPARATION of
+        themselves (ties to the first) and are parted from every stronger one by a dip
+        (:func:`dip_between`), at most ``max_contacts``."""
         seeds: list[int] = []
         for i in np.argsort(-d, kind="stable"):
-            if d[i] <= CONTACT_SEED_LEVEL * self.contact_threshold:
+            if d[i] <= CONTACT_SEED_LEVEL * max(level, 1.0) * self.contact_threshold:
                 break
             if len(seeds) == self.max_contacts:
                 break

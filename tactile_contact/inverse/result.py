@@ -172,12 +172,18 @@ class ResultMaker:
         2 mm-cell rendering (which loses the part of a contact beyond the skin mask and blurs
         a small disc); of the rendering only the peak, and whether any cell clears
         min_pressure (as summarize would find it: a cell above the threshold exists iff the
-        peak is)."""
+        peak is), or, when no cell took them, their own mean pressure."""
         q = self.render(fits)
         contacts = tuple(Contact(f.force, f.center, f.radius, FAMILIES[f.family]) for f in fits)
         force = sum(c.force for c in contacts)
         cop = sum(c.force * np.asarray(c.center) for c in contacts) / force
         peak = max(float(q.max(initial=0.0)), 0.0)
+        if not peak > self._min_pressure:
+            # No cell took the contacts: they press where the grid has no cells (the middle of
+            # the hexagon, 6.8 mm from every taxel, beyond the mask). Their own mean pressure
+            # says whether they press: a 1 N sphere there was fitted to 4 % and reported as
+            # no contact.
+            peak = max(peak, max(c.force / (math.pi * c.radius**2) for c in contacts))
         summary = ContactSummary(
             force,
             (float(cop[0]), float(cop[1])),

@@ -11,7 +11,8 @@ hundred microseconds per frame).
 
 Profiles: flat-punch-like p ∝ (a² − r²)^(−½) and Hertz-like p ∝ (a² − r²)^(½), each for
 log-spaced contact radii ``radii``. Between tabulated radii the response is interpolated
-linearly in log a. No ROS import.
+linearly in log a at distances scaled with the radius (an edge stays at the contact's
+radius: :func:`tactile_contact.inverse._round_kernels._response`). No ROS import.
 """
 
 from __future__ import annotations
@@ -275,25 +276,29 @@ def fit_round_contact(
     delta: ArrayLike,
     start_xy: ArrayLike,
     *,
-    search: float = 1.0e-3,
+    search: float | None = None,
     near: float = 0.015,
     sigma: float | ArrayLike | None = None,
     polish: bool = True,
+    thorough: bool = False,
 ) -> RoundFit | None:
     """Least-squares fit of one round contact to compressions ``delta`` [m] at ``taxel_xy``
     (K, 2) [m]: centre, profile (family and contact radius) and force.
 
-    Every family and FIT_START_RADII tabulated radii, evenly spread, start from the best centre
-    of a 0.5 mm lattice within ``search`` [m] of ``start_xy`` (one (2,) centre or several
-    (S, 2)); a few
-    Levenberg–Marquardt steps each, then the best FIT_KEEP run to convergence
-    (:func:`tactile_contact.inverse._round_kernels.fit_one`). The force is a fitted variable kept
-    ≥ 0. Taxels farther than ``near`` [m] from every start are left out of the fit (their
-    readings count in ``residual``). ``sigma`` [m], a scalar or one per taxel, weights the
-    readings (default: equal weights). ``polish`` False stops at fewer iterations (model
-    choice between one and several contacts). None if no profile fits with F > 0.
+    Around each start (``start_xy``: one (2,) centre or several (S, 2)) a SEARCH_PITCH lattice
+    within ``search`` [m] (default SEARCH_HALF) gives every family and about SEARCH_RADII
+    tabulated radii (evenly spread) their best centre; the FIT_CANDIDATES best of those
+    run a few Levenberg–Marquardt steps, the FIT_KEEP best of these to convergence
+    (:func:`tactile_contact.inverse._round_kernels.fit_one`). ``thorough``: a wider lattice
+    (THOROUGH_HALF), every radius and more candidates, for readings the usual search left
+    unexplained (≈ 2–3× its cost; :func:`hop_round_contact` looks around a fit). The force is
+    a fitted variable kept ≥ 0. Taxels farther than ``near`` [m] from every start are left
+    out of the fit (their readings count in ``residual``). ``sigma`` [m], a scalar or one per
+    taxel, weights the readings (default: equal weights). ``polish`` False stops at fewer
+    iterations (model choice between one and several contacts). None if no profile fits with
+    F > 0.
     """
-    from tactile_contact.inverse._round_kernels import fit_one, predict
+    from tactile_contact.inverse._round_kernels import fit_one
 
     xy = np.asarray(taxel_xy, dtype=np.float64)
     d = np.asarray(delta, dtype=np.float64)
@@ -303,7 +308,10 @@ def fit_round_contact(
         return None
     local, w2 = found
     t0, dt = tables.log_grid
-    _cost, x, y, t, force, fam = fit_one(
+    if search is None:
+        search = THOROUGH_HALF if thorough else SEARCH_HALF
+    offsets = _lattice_offsets(search, SEARCH_PITCH)
+    best = fit_one(
         tables.table,
         t0,
         dt,
@@ -311,18 +319,94 @@ def fit_round_contact(
         np.ascontiguousarray(xy[local]),
         np.ascontiguousarray(d[local]),
         np.ascontiguousarray(w2),
-        np.ascontiguousarray(c0[:, None, :] + _lattice_offsets(search, 5e-4)[None]),
-        _spread(len(tables.radii), FIT_CENTRE_RADII),
-        _spread(len(tables.radii), FIT_START_RADII),
+        np.ascontiguousarray((c0[:, None, :] + offsets[None]).reshape(-1, 2)),
+        np.repeat(np.arange(len(c0)), len(offsets)),
+        len(c0),
+        _every(len(tables.radii), 1 if thorough else len(tables.radii) // SEARCH_RADII),
+        THOROUGH_CANDIDATES if thorough else FIT_CANDIDATES,
         FIT_PRE_ITERATIONS,
-        FIT_KEEP,
+        THOROUGH_KEEP if thorough else FIT_KEEP,
         FIT_ITERATIONS if polish else FIT_PRE_ITERATIONS * 2,
     )
+    return _round_fit(tables, xy, d, best)
+
+
+def hop_round_contact(
+    tables: RoundTables,
+    taxel_xy: ArrayLike,
+    delta: ArrayLike,
+    fit: RoundFit,
+    *,
+    near: float = 0.015,
+    sigma: float | ArrayLike | None = None,
+) -> RoundFit | None:
+    """The best least-squares round contact started around ``fit``: from its centre moved by
+    HOP_SHIFTS [m] in eight directions, its radius scaled by HOP_SCALES, either family; a few
+    Levenberg–Marquardt steps each, the FIT_KEEP best to convergence. Arguments and result as
+    :func:`fit_round_contact`.
+
+    Why: a broad contact read by point-like taxels has narrow valleys side by side (a 12 mm
+    punch: 0.7 mm and 4 % in radius apart, each ≈ 0.3 mm and 5 % wide), and a lattice of
+    tabulated radii ranks the wrong one first when the true radius lies between two
+    tabulated ones (the cost at the true centre rose from 0 to 11 σ² with the radius 1.7 %
+    off)."""
+    from tactile_contact.inverse._round_kernels import fit_from
+
+    xy = np.asarray(taxel_xy, dtype=np.float64)
+    d = np.asarray(delta, dtype=np.float64)
+    c = np.asarray(fit.center, dtype=np.float64)
+    found = _near(tables, xy, d, c[None], near, sigma)
+    if found is None:
+        return None
+    local, w2 = found
+    t0, dt = tables.log_grid
+    starts = np.array(
+        [
+            (c[0] + dx, c[1] + dy, math.log(fit.radius * k), fam)
+            for dx, dy in _hop_shifts()
+            for k in HOP_SCALES
+            for fam in range(len(FAMILIES))
+        ]
+    )
+    best = fit_from(
+        tables.table,
+        t0,
+        dt,
+        tables.step,
+        np.ascontiguousarray(xy[local]),
+        np.ascontiguousarray(d[local]),
+        np.ascontiguousarray(w2),
+        starts,
+        FIT_PRE_ITERATIONS,
+        THOROUGH_KEEP,
+        FIT_ITERATIONS,
+    )
+    return _round_fit(tables, xy, d, best)
+
+
+def _round_fit(tables: RoundTables, xy: NDArray, d: NDArray, best: tuple) -> RoundFit | None:
+    """The kernels' (cost, x, y, t, F, family) as a RoundFit with its residual over xy, or
+    None without a positive force."""
+    from tactile_contact.inverse._round_kernels import predict
+
+    _cost, x, y, t, force, fam = best
     if not force > 0:
         return None
+    t0, dt = tables.log_grid
     pred = predict(tables.table, fam, t0, dt, tables.step, np.ascontiguousarray(xy), x, y, t, force)
     res = float(np.linalg.norm(pred - d))
     return RoundFit(float(force), (float(x), float(y)), int(fam), float(math.exp(t)), res)
+
+
+@functools.lru_cache(maxsize=1)
+def _hop_shifts() -> tuple[tuple[float, float], ...]:
+    """The centre shifts [m] of :func:`hop_round_contact`: none, and HOP_SHIFTS in eight
+    directions."""
+    out = [(0.0, 0.0)]
+    for r in HOP_SHIFTS:
+        for k in range(8):
+            out.append((r * math.cos(k * math.pi / 4), r * math.sin(k * math.pi / 4)))
+    return tuple(out)
 
 
 def _near(
@@ -399,24 +483,37 @@ def follow_round_contact(
     return RoundFit(float(force), (float(x), float(y)), int(fam), float(math.exp(t)), res)
 
 
-#: The fit starts from this many tabulated radii, evenly spread (every 3rd of the default 64):
-#: a 12 mm punch read by three taxels under its face has a basin narrower than 10 % in radius.
-FIT_START_RADII = 22
-#: Radii (evenly spread) whose best lattice centre starts every radius of a family.
-FIT_CENTRE_RADII = 8
+#: The search lattice: half-width [m] around each start and pitch [m]. Starts (the detector's
+#: best bank contact, the strongest taxel, centroids of the readings) lie 1–3 mm from a
+#: contact's centre; from 2 mm, on 200 noise-free random presses of a point-taxel truth with
+#: its own tables, 4 ended in a false valley (2 mm electrodes: 1), from 1 mm 10 (2).
+SEARCH_HALF = 2.0e-3
+SEARCH_PITCH = 5.0e-4
+#: About this many tabulated radii per family are candidates (every 2nd of the default 64,
+#: 10 % apart; every one of fewer than 64).
+SEARCH_RADII = 32
+#: Candidates (start × family × radius, best lattice centre) that run FIT_PRE_ITERATIONS.
+FIT_CANDIDATES = 24
+#: The thorough search (``fit_round_contact(thorough=True)``): wider, every radius.
+THOROUGH_HALF = 3.0e-3
+THOROUGH_CANDIDATES = 1024
+THOROUGH_KEEP = 8
+#: hop_round_contact's centre shifts [m] and radius scales [-] around a fit.
+HOP_SHIFTS = (0.4e-3, 0.8e-3, 1.2e-3)
+HOP_SCALES = (0.92, 0.96, 1.0, 1.04, 1.08)
 
 
 @functools.lru_cache(maxsize=16)
-def _spread(n: int, k: int) -> NDArray[np.int64]:
-    """Up to k indices spread evenly over 0 … n − 1, both ends included (read-only)."""
-    out = np.unique(np.linspace(0, n - 1, min(k, n)).round()).astype(np.int64)
+def _every(n: int, k: int) -> NDArray[np.int64]:
+    """Indices 0, k, 2k, … below n (read-only)."""
+    out = np.arange(0, n, max(int(k), 1), dtype=np.int64)
     out.flags.writeable = False
     return out
 
 
-#: Levenberg–Marquardt iterations from each start, then for the FIT_KEEP best to convergence.
+#: Levenberg–Marquardt iterations of each candidate, then of the FIT_KEEP best to convergence.
 FIT_PRE_ITERATIONS = 3
-FIT_KEEP = 3
+FIT_KEEP = 4
 FIT_ITERATIONS = 40
 
 
