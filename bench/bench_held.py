@@ -14,13 +14,22 @@ learns it):
 
 through ``Reconstructor(follow=True)`` (every frame solved: the node before fusion) and
 ``Reconstructor(follow=True, fuse=True)``, in alternating blocks of frames so both see the same
-load on this shared machine. Per stream: wall time a frame [µs] (mean: what a core spends;
-p50; p99), the ratio fused / every frame, the frames solved (on their own or fused), force and
-CoP errors (median over the frames in contact; misses count 100 %). The mean of an idle frame
-is split into the reading's conversion (``ReadingModel.from_delta_c``) and the rest, and the
-detector's pass alone (what every idle frame cost before) is timed beside it.
+load on this shared machine. Per stream: CPU time a frame [µs] (the thread's: time spent
+waiting for the machine's other processes left out; mean: what a core spends; p50; p99), the
+ratio fused / every frame, the frames solved (on their own or fused), force and CoP errors
+(median over the frames in contact; misses count 100 %). The reading's conversion
+(``ReadingModel.from_delta_c``) and the detector's pass alone (what every idle frame cost
+before fusion) are timed beside them.
 
-    .venv/bin/python bench/bench_held.py [--frames 2000] [--out docs/bench]
+False contacts on noise alone (the fused idle patch solves means of up to 32 frames, credited
+with less noise): ``--false-frames`` idle frames of (a) independent 0.5-count noise, (b) the
+false-alarm bench's idle skin (benchkit.readings.IdleSkin: taxels resting at fractions of a
+count, 0.15-count noise, the driver's tracked baseline; a new skin every 100 000 frames), noise
+passed as a tracker learns it (RMS of each skin's first 500 frames, at least the sensor
+model's); contacts counted as frames reported in contact after one that was not, per hour at
+50 Hz, with the 95 % Poisson upper bound.
+
+    .venv/bin/python bench/bench_held.py [--frames 2000] [--false-frames 200000] [--out docs/bench]
 """
 
 from __future__ import annotations
@@ -35,7 +44,8 @@ import numpy as np
 from bench_time import SLIDE_STEP, frame_noise, frames, slide_truth
 from benchkit import LAYOUT
 from benchkit.protocol import Patch
-from benchkit.readings import seed
+from benchkit.readings import IdleSkin, seed
+from benchkit.stats import poisson_upper
 from benchkit.tables import Report, md_table
 from benchkit.truths import truth
 from threadpoolctl import threadpool_limits
@@ -81,9 +91,9 @@ def run(
         for name, r in recons.items():
             o = out[name]
             for x in dc[start : start + BLOCK]:
-                t0 = time.perf_counter()
+                t0 = time.thread_time()
                 res = r.solve(x, noise=sigma, want_traction=False, want_deflection=False)
-                o["t"].append(time.perf_counter() - t0)
+                o["t"].append(time.thread_time() - t0)
                 o["f"].append(res.total_force if res.in_contact else np.nan)
                 o["c"].append(res.cop)
                 o["solved"].append(r.fusion is None or r.fusion.last != "held")
@@ -99,9 +109,51 @@ def errors(o: dict[str, np.ndarray], force: np.ndarray, centre: np.ndarray) -> t
     return f"{np.median(e):.1f}", f"{np.median(cop):.2f}" if ok.any() else "-"
 
 
+def false_contacts(recons: dict[str, Reconstructor], lay: Patch, n: int) -> list[list[str]]:
+    """Rows: per idle kind and reconstructor, contacts started, per hour, its upper bound."""
+    rows = []
+    k = len(lay.xy)
+    floor = frame_noise(lay) / np.hypot(0.5, 12**-0.5) / np.sqrt(6.0)  # one count/√6 [m]
+    for kind in ("0.5-count noise", "idle skin (driver baselines)"):
+        for name, r in recons.items():
+            if r.fusion is not None:
+                r.fusion.reset()
+            r.followed = None
+            rng = np.random.default_rng(seed("false", kind))
+            skin = IdleSkin(k, rng, 100_000)
+            starts, seen, was, sigma = 0, 0, False, None
+            while seen < n:
+                if kind.startswith("0.5"):
+                    counts = np.rint(rng.normal(0.0, 0.5, (min(5000, n - seen), k)))
+                    sigma = np.full(k, frame_noise(lay))
+                else:
+                    counts, fresh = skin.frames(min(5000, n - seen))
+                    if fresh or sigma is None:
+                        rms = np.sqrt(np.mean(counts[:500] ** 2, axis=0))
+                        sigma = np.maximum(lay.to_deflection(rms * lay.lsb), floor)
+                for x in counts * lay.lsb:
+                    res = r.solve(x, noise=sigma, want_traction=False, want_deflection=False)
+                    starts += res.in_contact and not was
+                    was = res.in_contact
+                seen += len(counts)
+            hour = 3600 * 50
+            rows.append(
+                [
+                    kind,
+                    name,
+                    str(seen),
+                    str(starts),
+                    f"{starts / seen * hour:.2f}",
+                    f"{poisson_upper(starts, seen) * hour:.2f}",
+                ]
+            )
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=2000, help="frames per stream")
+    ap.add_argument("--false-frames", type=int, default=200_000, help="idle frames per kind")
     ap.add_argument("--out", type=Path, help="write held.md here")
     args = ap.parse_args()
     threadpool_limits(1)
@@ -149,26 +201,33 @@ def main() -> None:
     r = recons["fused"]
     idle = streams(lay, 200)["idle"][0]
     n = 2000
-    t0 = time.perf_counter()
+    t0 = time.thread_time()
     for i in range(n):
         r.readings.from_delta_c(idle[i % 200], None)
-    conv = (time.perf_counter() - t0) / n
+    conv = (time.thread_time() - t0) / n
     d = r.readings.from_delta_c(idle[0], None)[0]
     det = r.detector
-    t0 = time.perf_counter()
+    t0 = time.thread_time()
     for _ in range(n):
         det.detect(d, False)
-    bank = (time.perf_counter() - t0) / n
+    bank = (time.thread_time() - t0) / n
     say()
     say(
         f"idle frame parts: conversion (from_delta_c) {conv * 1e6:.1f} µs; the detector's pass "
         f"alone {bank * 1e6:.1f} µs (every idle frame ran it before fusion)"
     )
+    if args.false_frames:
+        say()
+        say("false contacts on noise alone (contacts started; per hour at 50 Hz):")
+        head = ["idle frames", "mode", "frames", "contacts", "per hour", "95 % upper"]
+        for line in md_table(head, false_contacts(recons, lay, args.false_frames)):
+            say(line)
     if args.out:
         args.out.mkdir(parents=True, exist_ok=True)
         body = "\n".join(say.lines)
         title = "# Held, idle and moving patches: cost with fusion (bench/bench_held.py)"
         cmd = f".venv/bin/python bench/bench_held.py --frames {args.frames}"
+        cmd += f" --false-frames {args.false_frames}"
         (args.out / "held.md").write_text(f"{title}\n\n`{cmd}`\n\n{body}\n")
 
 
