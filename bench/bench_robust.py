@@ -9,7 +9,9 @@ Tiers (:mod:`benchkit.readings`): ``float``, δ + 1 % Gaussian noise through
 ``solve_deflection(δ)``; ``8-bit``, ΔC + 0.15-count noise rounded to counts through
 ``solve(ΔC)``.
 
-Bundles: ``default``, built from config/hexagon_patch.yaml; ``calibrated``, written by
+Bundles: ``default``, built from config/hexagon_patch.yaml (``--layout``: another layout's first
+patch, e.g. the imported iCub forearm config/icub/left_forearm_V2.yaml: the same places on its
+modules 4 and 2, by channel); ``calibrated``, written by
 ``python -m tactile_contact.offline.calibrate LAYOUT PRESSES.npz -o DIR`` from 48 presses of the
 same truth and tier at other places (random, on the skin, ≥ 2 mm from every test place; random
 indenter of the four, named in ``indenter``; 0.5–3 N; seeded). Without the calibrate command
@@ -74,7 +76,7 @@ TARGETS = (
 
 
 def calibrated_bundle(
-    lay: Patch, name: str, tier: str, n: int, tmp: Path
+    lay: Patch, name: str, tier: str, n: int, tmp: Path, layout: Path = LAYOUT
 ) -> tuple[Path | None, str]:
     """Calibrate on ``n`` presses of the truth at the tier's noise with the calibrate command;
     (bundle path or None, its printed summary or error)."""
@@ -90,7 +92,7 @@ def calibrated_bundle(
         sys.executable,
         "-m",
         "tactile_contact.offline.calibrate",
-        str(LAYOUT),
+        str(layout),
         str(npz),
         "-o",
         str(out),
@@ -102,7 +104,7 @@ def calibrated_bundle(
     if proc.returncode != 0:
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
         return None, f"calibrate failed (exit {proc.returncode}): " + " | ".join(tail)
-    bundle = out / "hexagon"
+    bundle = out / lay.name
     if not (bundle / "manifest.json").exists():
         found = sorted(q.parent for q in out.rglob("manifest.json"))
         if not found:
@@ -121,6 +123,13 @@ def main() -> None:
     ap.add_argument("--no-calibrate", action="store_true", help="default bundle only")
     ap.add_argument("--detail", action="store_true", help="per indenter and place, per row")
     ap.add_argument("--out", type=Path, help="write robust.md and robust.json here")
+    ap.add_argument(
+        "--layout",
+        type=Path,
+        default=LAYOUT,
+        help="layout whose first patch is under test (default: the hexagon; an imported iCub "
+        "patch's reports go to robust_<patch>.md/.json)",
+    )
     args = ap.parse_args()
     threadpool_limits(1)
     t_start = time.perf_counter()
@@ -136,9 +145,9 @@ def main() -> None:
     if n_cal > N_CAL:
         sys.exit(f"--cal-presses at most {N_CAL}")
     say = Report()
-    lay = Patch()
+    lay = Patch(args.layout)
     tmp = Path(tempfile.mkdtemp(prefix="bench_robust_"))
-    default = default_reconstructor(tmp / "default")
+    default = default_reconstructor(tmp / "default", args.layout)
     if not np.allclose(default.taxel_xy, lay.xy):
         sys.exit("bundle taxel order differs from the layout's taxel_xy()")
     have_cal = not args.no_calibrate and importlib.util.find_spec(
@@ -180,7 +189,7 @@ def main() -> None:
                     cal_notes.append(f"{name} 8-bit: {over} presses read beyond ±255 counts")
             bundles = {"default": default}
             if have_cal:
-                path, note = calibrated_bundle(lay, name, tier, n_cal, tmp)
+                path, note = calibrated_bundle(lay, name, tier, n_cal, tmp, args.layout)
                 cal_notes.append(f"calibrated {name} / {tier}: {note}")
                 if path is not None:
                     bundles["calibrated"] = Reconstructor.from_bundle(path)
@@ -254,12 +263,18 @@ def main() -> None:
         say(note)
     say(f"({time.perf_counter() - t_start:.0f} s in all)")
     if args.out:
+        other = args.layout.resolve() != LAYOUT.resolve()
+        shown = args.layout.resolve()
+        shown = shown.relative_to(ROOT) if shown.is_relative_to(ROOT) else shown
+        stem = f"robust_{lay.name}" if other else "robust"
         say.write(
             args.out,
-            "robust.md",
-            "Robustness to the taxel response (bench/bench_robust.py)",
+            f"{stem}.md",
+            "Robustness to the taxel response (bench/bench_robust.py)"
+            + (f" on {lay.name} ({shown})" if other else ""),
             f".venv/bin/python bench/bench_robust.py{' --quick' if args.quick else ''} "
-            f"--out {args.out}",
+            + (f"--layout {shown} " if other else "")
+            + f"--out {args.out}",
         )
         blob = {
             "rows": [
@@ -267,7 +282,7 @@ def main() -> None:
             ],
             "worst": [{"tier": k[0], "bundle": k[1], **v} for k, v in worst.items()],
         }
-        (args.out / "robust.json").write_text(json.dumps(blob, indent=1, default=float))
+        (args.out / f"{stem}.json").write_text(json.dumps(blob, indent=1, default=float))
 
 
 def detail(say, r: dict[str, np.ndarray], p: dict[str, np.ndarray]) -> None:

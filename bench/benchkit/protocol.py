@@ -40,16 +40,29 @@ QUICK_FORCES = (0.2, 0.5, 1.0, 3.0)
 PLACES = ("over a taxel", "between two", "between three")
 
 
-def positions(xy: NDArray, modules: tuple[int, ...] = (4, 2)) -> list[tuple[str, NDArray]]:
+def positions(
+    xy: NDArray, modules: tuple[int, ...] = (4, 2), ids: NDArray | None = None
+) -> list[tuple[str, NDArray]]:
     """(kind, centre [m]) of the protocol's places: over taxel 3, between taxels 7 and 11, at
-    the centroid of 3, 7, 11 of each module (12 taxels a module, bundle order)."""
+    the centroid of 3, 7, 11 of each module (the k-th module of the bundle order). Without
+    ``ids`` every module has 12 taxels (the default patch's roboskin12); with the bundle's
+    taxel ids (board << 8 | triangle << 4 | channel) any module type whose channels 3, 7, 11
+    are taxels (an imported iCub patch's icub_v2_10pad: 10 taxels a module)."""
     out = []
-    for k in modules:
-        m = xy[12 * k : 12 * k + 12]
+    if ids is None:
+        per_module = [(xy[12 * k + 3], xy[12 * k + 7], xy[12 * k + 11]) for k in modules]
+    else:
+        ids = np.asarray(ids)
+        order = list(dict.fromkeys((ids >> 4).tolist()))  # modules in bundle order
+        per_module = [
+            tuple(xy[int(np.flatnonzero(ids == (order[k] << 4 | c))[0])] for c in (3, 7, 11))
+            for k in modules
+        ]
+    for t3, t7, t11 in per_module:
         out += [
-            (PLACES[0], m[3]),
-            (PLACES[1], (m[7] + m[11]) / 2),
-            (PLACES[2], (m[3] + m[7] + m[11]) / 3),
+            (PLACES[0], t3),
+            (PLACES[1], (t7 + t11) / 2),
+            (PLACES[2], (t3 + t7 + t11) / 3),
         ]
     return out
 
@@ -60,7 +73,9 @@ class Patch:
 
     def __init__(self, path: Path = LAYOUT) -> None:
         patch = load_layout(path).patches[0]
+        self.name = patch.name
         self.xy = patch.taxel_xy()
+        self.ids = patch.taxel_ids()
         e, s = patch.elastomer, patch.sensor
         self.thickness, self.young, self.poisson = e.thickness, e.young, e.poisson
         self.epsilon_r, self.area = s.epsilon_r, s.area

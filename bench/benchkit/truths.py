@@ -226,7 +226,7 @@ def test_presses(lay: Patch, name: str, quick: bool = False) -> dict[str, NDArra
     folder = CACHE / _tag(lay, name)
     folder.mkdir(parents=True, exist_ok=True)
     made = None
-    places = positions(lay.xy, (4,) if quick else (4, 2))
+    places = positions(lay.xy, (4,) if quick else (4, 2), lay.ids)
     forces = QUICK_FORCES if quick else FORCES
     rows: dict[str, list] = {k: [] for k in ("d", "J", "f", "c", "ind", "place")}
     for iname, ind in INDENTERS.items():
@@ -252,7 +252,7 @@ def calibration_places(lay: Patch, n: int) -> list[tuple[str, NDArray, float]]:
     """``n`` (indenter, place, force) presses, seeded and the same for every truth: on the skin
     (≤ CAL_ON_SKIN from a taxel), ≥ CAL_MIN_DIST from every test place, 0.5–3 N."""
     rng = np.random.default_rng(2016)
-    tests = np.array([c for _, c in positions(lay.xy)])
+    tests = np.array([c for _, c in positions(lay.xy, ids=lay.ids)])
     lo, hi = lay.xy.min(axis=0), lay.xy.max(axis=0)
     names = list(INDENTERS)
     out = []
