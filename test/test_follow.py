@@ -140,9 +140,9 @@ def test_following_is_off_by_default_and_after_no_contact(bundle, truth):
     rng = np.random.default_rng(7)
     press = counts(f, truth.compression(HertzSphere(6e-3), 1.5, f.taxel_xy[30]), rng)
     f.solve_deflection(press, noise=f.default_noise)
-    assert f._followed is not None
+    assert f.followed is not None
     f.solve_deflection(np.zeros(f.n_taxels), noise=f.default_noise)
-    assert f._followed is None
+    assert f.followed is None
 
 
 def test_noise_right_after_a_followed_press_is_no_contact(bundle, truth):
@@ -154,6 +154,6 @@ def test_noise_right_after_a_followed_press_is_no_contact(bundle, truth):
     press = counts(f, truth.compression(HertzSphere(6e-3), 1.5, f.taxel_xy[30]), rng)
     for _ in range(300):
         assert f.solve_deflection(press, noise=f.default_noise).in_contact
-        assert f._followed is not None
+        assert f.followed is not None
         noise = rng.normal(size=f.n_taxels) * f.default_noise
         assert not f.solve_deflection(noise, noise=f.default_noise).in_contact
