@@ -35,7 +35,7 @@ def _frame(patch: str) -> Any:
 
 
 def test_a_batch_goes_out_when_every_patch_has_a_reading_or_its_window_ends() -> None:
-    from tactile_contact.ros.skin_driver import Batcher
+    from tactile_contact.canbus.batcher import Batcher
 
     b = Batcher(["a", "b", "c"], window_s=0.002)
     assert b.add(_frame("a"), now=10.0) == [] and b.due == pytest.approx(10.002)

@@ -460,6 +460,6 @@ def test_socketcan_interface_down_and_removed_then_back(ros_context: Any, vcan: 
 def test_socketcan_errors_that_mean_the_interface_is_gone(exc: Exception, gone: str) -> None:
     """As python-can's socketcan raises them: reopened at once, not after a run of errors
     (a socketcan socket reports ENETDOWN once, then waits quietly)."""
-    from tactile_contact.ros.skin_driver import _interface_gone
+    from tactile_contact.canbus.bus_health import interface_gone
 
-    assert _interface_gone(exc) == gone
+    assert interface_gone(exc) == gone

@@ -14,6 +14,7 @@ ROS-free, like :mod:`tactile_contact.canbus.stream`; the driver node reports the
 
 from __future__ import annotations
 
+import errno
 import math
 from dataclasses import dataclass, field
 
@@ -187,3 +188,27 @@ class ControllerState:
         }
         out.update({f"error_frames_{k}": v for k, v in sorted(self.by_class.items())})
         return out
+
+
+def interface_gone(exc: BaseException) -> str:
+    """ "down" / "removed" when a receive error says the network interface is, else ""."""
+    # python-can's socketcan raises CanOperationError(..., error_code=errno) from the OSError
+    errno_ = (
+        getattr(exc, "errno", None)
+        or getattr(exc, "error_code", None)
+        or getattr(exc.__cause__, "errno", None)
+    )
+    if errno_ == errno.ENETDOWN:
+        return "down"
+    if errno_ in (errno.ENODEV, errno.ENXIO):
+        return "removed"
+    return ""
+
+
+def may_come_up(exc: BaseException, replay_file: str) -> bool:
+    """Whether a bus that failed to open with ``exc`` is worth retrying: a live interface that
+    is not there yet (no such device, address family, adapter unplugged); not an unknown
+    python-can interface, a backend that cannot import, a bad channel or a replay file."""
+    if replay_file:
+        return False
+    return not isinstance(exc, (can.CanInterfaceNotImplementedError, ImportError, ValueError))
