@@ -150,12 +150,25 @@ def _choose_patches(
     for gi, group in enumerate(groups):
         stem = base if len(groups) == 1 else f"{base}_{gi}"
         whole = None
+        multi = len({it.board_index for it in group}) > 1
         if split in ("auto", "part"):
-            whole = _place(stem, group, pos, report)
+            try:
+                whole = _place(stem, group, pos, report)
+            except IcubFileError as exc:
+                if split == "part" or not multi:
+                    raise
+                # e.g. estimated (noisy) rows placed from each board's .ini drawing, whose
+                # blocks then collide on one surface; boards placed alone do not meet
+                report.notes.append(
+                    f"{stem}: the part cannot be placed as one patch ({exc.problem}): one "
+                    "patch per board"
+                )
+                whole = None
+        if whole is not None:
             p = whole[0]
             ok = p.figures.within_targets and p.fit.rms <= AUTO_SURFACE_RMS
             small = p.figures.taxels <= AUTO_MAX_TAXELS
-            if split == "part" or (ok and small) or len({it.board_index for it in group}) == 1:
+            if split == "part" or (ok and small) or not multi:
                 chosen.append(whole)
                 continue
             if not ok:

@@ -41,6 +41,7 @@ class IniSensor:
         mirror: the GUI draws the sensor mirrored (x → −x before rotating).
         layout_num: alternative channel order of the drawing (1: channel k at 11 − k).
         line: 1-based line number in the file.
+        path: the .ini file it was read from (for error messages).
     """
 
     type: str
@@ -52,6 +53,7 @@ class IniSensor:
     mirror: bool
     layout_num: int
     line: int
+    path: str = ""
 
 
 @dataclass(frozen=True)
@@ -163,6 +165,7 @@ def read_ini(path: str | Path) -> SkinGuiIni:
                 mirror=bool(mirror),
                 layout_num=int(_number(p, n, "layoutNum", fields[7], integer=True)),
                 line=n,
+                path=str(p),
             )
         )
     if not found_sensors:

@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from tactile_contact.model.modules import ModuleType, place_channels
+from tactile_contact.offline.icub.errors import IcubFileError
 from tactile_contact.offline.icub.handedness import (
     MIN_SPREAD,
     choose_side,
@@ -170,11 +171,14 @@ def place_patch(
         a, b, gap = clash
         movable = [x for x in (a, b) if id(x.item) not in force_ini and x.item.gui.gui_units_per_mm]
         if not movable or any(id(x.item) not in origins for x in movable):
-            raise ValueError(
+            raise IcubFileError(
+                a.item.sensor.path or "the .ini",
+                a.item.sensor.line,
                 f"slots {a.item.slots[0]} and {b.item.slots[0]} (.ini lines {a.item.sensor.line} "
                 f"and {b.item.sensor.line}) overlap once placed (taxels {gap * 1e3:.1f} mm "
-                f"apart; positions from {a.position_source} and {b.position_source}): the "
-                "positions file and the .ini disagree on where these modules are"
+                f"apart; positions from {a.position_source} and {b.position_source}): "
+                f"{pos.path} and the .ini disagree on where these modules are (the positions "
+                "file of another part or revision?)",
             )
         for x in movable:
             force_ini[id(x.item)] = (
@@ -299,10 +303,12 @@ def _place_items(
         )
         from_ini = id(it) in force_ini or not len(t)
         if ini_angle is None or d is None or (from_ini and it.gui.gui_units_per_mm is None):
-            raise ValueError(
-                f"cannot place slot {slot} ({it.sensor.type} of .ini line {it.sensor.line}): "
+            raise IcubFileError(
+                it.sensor.path or "the .ini",
+                it.sensor.line,
+                f"cannot place slot {slot} ({it.sensor.type}): "
                 f"{why}, and its board has too few placed modules (or the type's drawing is "
-                "not to scale) to place it from the .ini"
+                "not to scale) to place it from the .ini",
             )
         ang = math.radians(ini_angle)
         rot = np.array([[math.cos(ang), -math.sin(ang)], [math.sin(ang), math.cos(ang)]])

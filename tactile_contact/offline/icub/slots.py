@@ -213,7 +213,17 @@ def gather(
                 )
             taken[s.slot + k] = s
     if not chosen:
-        raise IcubFileError(ini_p, None, "no sensor of a type this importer can model")
+        first = skipped[0] if skipped else None
+        raise IcubFileError(
+            ini_p,
+            first.line if first else None,
+            "no sensor of a type this importer can model"
+            + (
+                f" (only {', '.join(sorted({k.type for k in skipped}))}: {UNSUPPORTED[first.type]})"
+                if first
+                else ""
+            ),
+        )
     n_boards = max(taken) // 16 + 1
     addresses = resolve_addresses(ini, n_boards, boards, boards_source, spec, report)
     report.addresses = addresses
@@ -228,7 +238,7 @@ def gather(
         )
         raise IcubFileError(
             pos_p,
-            None,
+            pos.line(expected) if n_rows > expected else pos.line(n_rows - 1),
             f"{n_rows} calibration rows, expected {expected} = 192 per board × "
             f"{len(addresses)} board(s) ({report.address_source}): {fix}",
         )
