@@ -193,8 +193,11 @@ def _drop_rows(n: int):
 )
 def test_missing_or_extra_rows(tmp_path, edit, message):
     bad = _edit(tmp_path, FOREARM[1], edit)
-    with pytest.raises(IcubFileError, match=re.escape(message)):
+    with pytest.raises(IcubFileError, match=re.escape(message)) as exc:
         import_part(FOREARM[0], bad, boards=(13, 12))
+    # the line of the first extra row, or of the last row when rows are missing
+    n = len(bad.read_text(encoding="utf-8").rstrip("\n").splitlines())
+    assert exc.value.path == str(bad) and exc.value.line == n
 
 
 def test_rows_of_a_slot_the_ini_does_not_list(tmp_path):
@@ -211,6 +214,44 @@ def test_rows_of_a_slot_the_ini_does_not_list(tmp_path):
 def test_positions_of_another_part_are_refused():
     with pytest.raises(IcubFileError, match=r"does not match the \.ini"):
         import_part(FOREARM[0], LEG[1], boards=(13, 12, 1, 2))
+
+
+def test_palm_positions_of_another_hand_revision_are_refused_by_the_cli(tmp_path):
+    # left_hand.ini: the V1 palm, four 12-taxel triangles on slots 8..11, whose rows in the
+    # V2.1 hand's file are the V2 palm's; placed from them, slots 8 and 9 overlap.
+    ini = DATA / "left_hand.ini"
+    proc = subprocess.run(
+        [sys.executable, "-m", "tactile_contact.offline.icub.cli", str(ini), str(HAND[1]),
+         "-o", str(tmp_path / "x.yaml"), "--boards", "14"],
+        capture_output=True, text=True, cwd=ROOT, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"ERROR: {ini}:23: slots 8 and 9")
+    assert "disagree on where these modules are" in lines[0]
+    assert not (tmp_path / "x.yaml").exists()
+
+
+def test_estimated_positions_too_noisy_for_one_patch_go_per_board():
+    # left_arm_mesh.txt: positions estimated from taxel responses (2.4-4.2 mm rms off the
+    # template), so modules are placed from each board's .ini drawing; as one patch two
+    # boards' drawings collide, so auto splits per board, and --split part is refused.
+    arm = (DATA / "left_arm.ini", DATA / "left_arm_mesh.txt")
+    r = import_part(*arm, boards=(11, 10, 9, 8))
+    assert [p.name for p in r.layout.patches] == [f"left_arm_b{a}" for a in (11, 10, 9, 8)]
+    assert sum(len(p.modules) for p in r.layout.patches) == 38
+    assert any("cannot be placed as one patch" in n for n in r.report.notes)
+    assert sum(a.kind == "noisy_rows" for a in r.report.anomalies) >= 30
+    with pytest.raises(IcubFileError, match=r"overlap once placed") as exc:
+        import_part(*arm, boards=(11, 10, 9, 8), split="part")
+    assert exc.value.path == str(arm[0]) and exc.value.line is not None
+
+
+def test_an_ini_of_unsupported_sensors_only_names_them(tmp_path):
+    ini = tmp_path / "quad.ini"
+    ini.write_text("cardid 14\n[SENSORS]\nquad16 0 0 0 0 1 0\n", encoding="utf-8")
+    with pytest.raises(IcubFileError, match=r"quad.ini:3: no sensor of a type .*only quad16"):
+        import_part(ini, HAND[1])
 
 
 def test_unknown_sensor_type_names_the_line(tmp_path):
