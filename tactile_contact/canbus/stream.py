@@ -1,4 +1,5 @@
-"""The ROS-free half of ``skin_driver``: bus opening, log replay, patch readings, health.
+"""The ROS-free half of ``skin_driver``: patch readings and their health (bus opening and log
+replay are :mod:`tactile_contact.canbus.bus`, re-exported here).
 
 :class:`SkinStream` turns received CAN messages into per-patch readings: the codec's
 :class:`~tactile_contact.canbus.assembler.PeriodAssembler` pairs frames A and B into module
@@ -23,11 +24,8 @@ Times: ``stamp`` values are the messages' receive times (python-can ``timestamp`
 
 from __future__ import annotations
 
-import contextlib
 import math
-import re
-import threading
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import can
@@ -36,6 +34,7 @@ from numpy.typing import NDArray
 
 from tactile_contact.canbus import assembler, codec
 from tactile_contact.canbus import baseline as bl
+from tactile_contact.canbus.bus import ReplayBus, bus_kwargs, close_bus, open_bus
 from tactile_contact.canbus.bus_health import BUS_OFF, ERROR_ACTIVE, BusErrorPolicy, ControllerState
 from tactile_contact.model.layout import PatchLayout
 from tactile_contact.model.modules import CHANNELS_PER_MODULE, taxel_id
@@ -59,118 +58,6 @@ LIVE_RECHECK_S = 0.005
 #: Longest time [s] between checks for modules that fell silent (a silent module is reported
 #: at most this long after its timeout).
 SILENCE_CHECK_S = 0.01
-
-
-class ReplayBus:
-    """A candump log read like a bus: :meth:`recv` returns its messages at recorded pace.
-
-    Built on ``can.LogReader`` and ``can.MessageSync``. Gaps longer than ``max_gap_s`` are
-    shortened to it. ``can_filters`` are applied as a live bus would (python-can form). After
-    the last message :attr:`finished` is True and :meth:`recv` returns None after ``timeout``.
-    """
-
-    def __init__(
-        self, path: str, max_gap_s: float = 1.0, can_filters: Sequence[dict] | None = None
-    ) -> None:
-        self._reader = can.LogReader(path)
-        self._messages: Iterator[can.Message] = iter(
-            can.MessageSync(self._reader, timestamps=True, skip=max_gap_s)
-        )
-        self._filters = list(can_filters or [])
-        self.finished = False
-        self._closed = threading.Event()
-
-    def _matches(self, msg: can.Message) -> bool:
-        if not self._filters:
-            return True
-        return any(
-            (msg.arbitration_id & f["can_mask"]) == (f["can_id"] & f["can_mask"])
-            and msg.is_extended_id == f.get("extended", msg.is_extended_id)
-            for f in self._filters
-        )
-
-    def recv(self, timeout: float | None = None) -> can.Message | None:
-        """Next message of the log that passes the filters (waits for its recorded time)."""
-        while not self.finished:
-            try:
-                msg = next(self._messages)
-            except StopIteration:
-                self.finished = True
-                break
-            if self._matches(msg):
-                return msg
-        self._closed.wait(timeout or 0.0)
-        return None
-
-    def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        """A log cannot be written to: the message is discarded."""
-
-    def shutdown(self) -> None:
-        self._closed.set()
-        self._reader.stop()
-
-
-def bus_kwargs(interface: str, channel: str, bitrate: int = 0) -> dict:
-    """``can.Bus`` keywords for ``interface`` and ``channel`` (``bitrate`` 0: left out).
-
-    For ``udp_multicast`` the channel may name a port as ``GROUP:PORT`` (IPv4, e.g.
-    ``239.74.163.2:43156``). Why: python-can binds every such bus to its port (default 43113)
-    on all addresses, and Linux delivers every group joined anywhere on the machine at that port
-    to it: two simulations on one machine stay apart only on different ports.
-    """
-    kwargs: dict = {"interface": interface, "channel": channel}
-    m = re.fullmatch(r"(\d{1,3}(?:\.\d{1,3}){3}):(\d+)", channel.strip())
-    if interface == "udp_multicast" and m:
-        port = int(m.group(2))
-        if not 1 <= port <= 65535:
-            raise ValueError(f"channel {channel!r}: port {port} is not in 1..65535")
-        kwargs.update(channel=m.group(1), port=port)
-    if bitrate:
-        kwargs["bitrate"] = bitrate
-    return kwargs
-
-
-def open_bus(
-    *,
-    interface: str,
-    channel: str,
-    bitrate: int = 0,
-    replay_file: str = "",
-    replay_max_gap_s: float = 1.0,
-    can_filters: Sequence[dict] | None = None,
-) -> can.BusABC | ReplayBus:
-    """A python-can bus from configuration, or a :class:`ReplayBus` when ``replay_file`` is set.
-
-    ``bitrate`` 0 leaves the interface's own setting; channels as :func:`bus_kwargs` reads
-    them. Raises whatever python-can raises for a bus it cannot open (``can.CanError``,
-    ``OSError``, ``ImportError``, ``ValueError``...).
-    """
-    if replay_file:
-        return ReplayBus(replay_file, replay_max_gap_s, can_filters)
-    kwargs = bus_kwargs(interface, channel, bitrate)
-    if can_filters:
-        kwargs["can_filters"] = list(can_filters)
-    return can.Bus(**kwargs)
-
-
-def close_bus(bus: can.BusABC | ReplayBus) -> str:
-    """Shut ``bus`` down; never raises. Returns the error text ("" when it closed cleanly).
-
-    A backend may give up half-way on a device that is gone: python-can's slcan writes its
-    close command to an unplugged port, raises, and never closes the port. Then the handles it
-    is known to hold are closed here, so that a driver reconnecting for days leaks no file
-    descriptor.
-    """
-    try:
-        bus.shutdown()
-        return ""
-    except Exception as exc:
-        for name in ("serialPortOrig", "ser", "socket", "_socket"):
-            handle = getattr(bus, name, None)
-            if handle is not None and callable(getattr(handle, "close", None)):
-                with contextlib.suppress(Exception):
-                    handle.close()
-        return f"{type(exc).__name__}: {exc}"
 
 
 @dataclass(frozen=True)
