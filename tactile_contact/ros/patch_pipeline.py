@@ -184,6 +184,11 @@ class PatchPipeline:
         """Whether ``pub`` has a subscriber, counted at most every SUBSCRIBERS_RECOUNT_S. Why:
         each count is an rmw query (7 a frame cost 2 % of the node's time at 24 patches); a
         new subscriber gets its first message that much later."""
+        self._recount()
+        return self._subscribed[pub] > 0
+
+    def _recount(self) -> None:
+        """Count the outputs' subscribers again if the last count is SUBSCRIBERS_RECOUNT_S old."""
         now = time.monotonic()
         if now - self._subscribed_at > SUBSCRIBERS_RECOUNT_S:
             self._subscribed_at = now
@@ -198,7 +203,6 @@ class PatchPipeline:
                     self.pub_contact_markers,
                 )
             }
-        return self._subscribed[pub] > 0
 
     def use(self, recon: Reconstructor) -> None:
         """Serve with ``recon`` from now on (at start, and when the bundle was replaced)."""
@@ -309,20 +313,21 @@ class PatchPipeline:
             stats.nonfinite_readings += bad
             self._fault("non-finite ΔC", f"{bad} taxel(s) NaN or inf; left out", warn=True)
         valid = ((status & _UNUSABLE) == 0) & finite
-        want_deflection = self.subscribed(self.pub_deflection)
-        want_traction = self.subscribed(self.pub_traction) or self.subscribed(self.pub_cloud)
+        self._recount()  # (once a frame: the outputs' subscriber counts, refreshed at 5 Hz)
+        sub = self._subscribed
+        want_deflection = sub[self.pub_deflection] > 0
+        want_traction = sub[self.pub_traction] > 0 or sub[self.pub_cloud] > 0
         t1 = time.perf_counter()
+        readings = np.where(valid, delta_c, 0.0)
         result = self.recon.solve(
-            np.where(valid, delta_c, 0.0),
+            readings,
             valid=valid,
             want_traction=want_traction,
             want_deflection=want_deflection,
             noise=self.noise.sigma,
         )
         if not result.in_contact:
-            self.noise.update(
-                self.recon.compression(np.where(valid, delta_c, 0.0)), valid, result.in_contact
-            )
+            self.noise.update(self.recon.compression(readings), valid, result.in_contact)
         t2 = time.perf_counter()
         out_of_range = int(valid.sum()) - result.taxels_used
         if out_of_range:
@@ -399,10 +404,11 @@ class PatchPipeline:
             stats.unpublishable += 1
             self._fault("not published", str(exc))
             return False
-        want_images = result.traction is not None and self.subscribed(self.pub_traction)
+        sub = self._subscribed
+        want_images = result.traction is not None and sub[self.pub_traction] > 0
         if not want_images:
             stats.skipped_images += 1
-        want_contact = contact or self.subscribed(self.pub_contact)
+        want_contact = contact or sub[self.pub_contact] > 0
         if not (want_images or want_contact or result.deflection is not None) and (
             self._skip_visualization()
         ):
@@ -447,7 +453,8 @@ class PatchPipeline:
         """No markers or cloud this frame: nobody subscribes, or not the N-th frame."""
         every = self.node.visualization_every
         outputs = (self.pub_markers, self.pub_cloud, self.pub_contact_markers)
-        return not any(self.subscribed(o) for o in outputs) or bool(self.stats.frames % every)
+        sub = self._subscribed
+        return not any(sub[o] for o in outputs) or bool(self.stats.frames % every)
 
     def _publish_visualization(
         self, header: Header, result: Any, delta_c: np.ndarray, valid: np.ndarray
@@ -455,7 +462,8 @@ class PatchPipeline:
         if self._skip_visualization():
             self.stats.skipped_visualization += 1
             return
-        if self.subscribed(self.pub_markers):
+        sub = self._subscribed
+        if sub[self.pub_markers]:
             self.pub_markers.publish(
                 convert.taxel_markers(
                     self.recon.taxel_xy,
@@ -468,13 +476,13 @@ class PatchPipeline:
                     surface=self.surface,
                 )
             )
-        if result.traction is not None and self.subscribed(self.pub_cloud):
+        if result.traction is not None and sub[self.pub_cloud]:
             self.pub_cloud.publish(
                 convert.pressure_cloud(
                     self.recon.traction_grid, result.traction, header, surface=self.surface
                 )
             )
-        if self.subscribed(self.pub_contact_markers):
+        if sub[self.pub_contact_markers]:
             self.pub_contact_markers.publish(
                 convert.contact_markers(result.contacts, header, self.name, self.surface)
             )

@@ -1,0 +1,489 @@
+"""Reconstruction workers under load: CPU per patch-frame by kind (idle, held, sliding) beside
+the batched relay's, throughput at saturation with 1 and 2 workers, memory per worker.
+
+No CAN and no driver here (bench_load measures the whole chain): a source process publishes
+the TaxelBatch messages a driver would, made before timing from the skin simulator's readings
+(8-bit module values with 0.6 CDC counts of noise; ΔC as the driver computes it, from a
+baseline that is the mean of 100 unloaded readings), a group of patches per message, the
+groups spread over the 20 ms period. The
+consumers are real ``contact_reconstruction`` processes (``input: batches``, ``worker_index``
+of ``worker_count``) or bench/load_relay_batches.py (the same ROS work, nothing solved); a probe
+takes ``contacts`` and ``taxel_batches``. Every phase waits until its consumers serve, warms
+up, then measures over a window: patch-frames offered (the batches' rows the probe saw) and
+summarised (the ContactArray rows), the difference (skipped), the consumers' process CPU
+(CPU per patch-frame: their CPU time over the rows summarised), the latency of each row (the
+reading's stamp, set when the source sends it as a driver sets the CAN receive time → the
+ContactArray published: one DDS hop, the queue, the solve; the driver's assembly and batch
+window come on top), each consumer's memory; ``--profile S``: py-spy on the first consumer.
+
+- ``kinds``: the relay, then one worker with every patch idle, held still, sliding (the
+  scenes of tactile_contact.sim.scenes), 24 patches of 72 taxels at 50 Hz: CPU per
+  patch-frame of each kind beside the relay's;
+- ``scale``: scene (a), 24 sliding patches at 50 Hz, two workers;
+- ``saturation``: the sliding scene offered at ``--rate`` (above what one core solves), one
+  worker then two: patch-frames summarised per second, and their ratio;
+- ``robot``: the whole robot (config/icub_robot.yaml, bundles in out/robot/bundles, built at
+  the start when missing: ≈ 30 min of CPU), scene (b) (typical), one batch a bus: the relay,
+  one worker, two workers (latency, CPU, memory per worker).
+
+A markdown table of every phase closes the output.
+
+    python bench/bench_workers.py [--phases kinds scale saturation robot] [--seconds 20]
+                                  [--warmup 5] [--quick] [--rate 200] [--profile S]
+                                  [--out docs/bench]
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+from benchkit import ROOT
+from benchkit.skins import PERIOD_MS, multi_patch_layout
+from benchkit.timing import profile
+
+OUT = ROOT / "out" / "bench_workers"
+ROBOT = ROOT / "config" / "icub_robot.yaml"
+ROBOT_BUNDLES = ROOT / "out" / "robot" / "bundles"
+
+
+# -- the source ---------------------------------------------------------------------------------
+def readings(layout: Path, scene: str, seconds: float) -> tuple[list, list[list]]:
+    """Per patch (name, frame, ids, status) and per period per patch (ΔC [F] float32, raw);
+    kept in out/bench_workers for the next run of the same layout file and scene (simulating
+    34 patches takes longer than a measured phase)."""
+    import hashlib
+    import pickle
+
+    key = hashlib.sha1(layout.read_bytes() + f"{scene} {seconds}".encode()).hexdigest()[:12]
+    cache = OUT / f"readings_{layout.stem}_{scene}_{key}.pkl"
+    if cache.exists():
+        return pickle.loads(cache.read_bytes())
+    fixed, per_period = simulate(layout, scene, seconds)
+    OUT.mkdir(parents=True, exist_ok=True)
+    cache.write_bytes(pickle.dumps((fixed, per_period)))
+    return fixed, per_period
+
+
+def simulate(layout: Path, scene: str, seconds: float) -> tuple[list, list[list]]:
+    """:func:`readings` made: the skin simulator's periods, ΔC from a calibrated baseline."""
+    from tactile_contact.model.layout import load_layout
+    from tactile_contact.model.modules import taxel_id
+    from tactile_contact.msg import TaxelArray
+    from tactile_contact.sim.scenes import scene_indentations
+    from tactile_contact.sim.simulator import simulator_for_patch
+
+    patches = list(load_layout(layout).patches)
+    scenes = scene_indentations(patches, scene)
+    period_s = PERIOD_MS * 1e-3
+    count = int(seconds / period_s)
+    fixed, per_period = [], [[] for _ in range(count)]
+    for k, p in enumerate(patches):
+        ids = np.array([taxel_id(m.board, m.triangle, c) for m in p.modules for c in range(12)])
+        status = np.where(p.valid_mask(), 0, TaxelArray.STATUS_DISABLED).astype(np.uint8)
+        fixed.append((p.name, p.frame_id, ids.astype(np.uint16), status))
+        sim = simulator_for_patch(
+            p, fine_cell=5e-4, realtime=True, period_s=period_s, noise_cdc=0.6, seed=k
+        )
+        count_farad = p.sensor.farad_per_count * 2**p.sensor.shift
+        # the driver's baseline: the mean of unloaded readings (its calibration)
+        baseline = np.mean([sim.period(None, -1.0).truth.values for _ in range(100)], axis=0)
+        for j in range(count):
+            ind, t = scenes[p.name].at(j * period_s)
+            values = sim.period(ind, t).truth.values
+            dc = ((baseline - values.astype(np.float64)) * count_farad).astype(np.float32)
+            per_period[j].append((dc, values))
+    return fixed, per_period
+
+
+def source_process(layout: Path, scene: str, rate_hz: float, group: int) -> None:
+    """Publish the scene's batches (``group`` patches each, the groups spread over the
+    period) at ``rate_hz`` periods a second until SIGINT; READY when made, sending on GO."""
+    import rclpy
+    from rclpy.node import Node
+
+    from tactile_contact.model.layout import load_layout
+    from tactile_contact.msg import TaxelBatch
+    from tactile_contact.ros.cdr import write_taxel_batch
+    from tactile_contact.ros.common import SENSOR_QOS
+
+    fixed, per_period = readings(layout, scene, 4.0)
+    rclpy.init()
+    node = Node("workers_source")
+    pub = node.create_publisher(TaxelBatch, "taxel_batches", SENSOR_QOS)
+    if group:
+        groups = [list(range(k, min(k + group, len(fixed)))) for k in range(0, len(fixed), group)]
+    else:  # one batch a bus, as the drivers send them
+        buses: dict[str, list[int]] = {}
+        for k, p in enumerate(load_layout(layout).patches):
+            buses.setdefault(p.bus, []).append(k)
+        groups = list(buses.values())
+    print("READY", flush=True)
+    sys.stdin.readline()  # GO
+    step = 1.0 / rate_hz / len(groups)
+    t0 = time.monotonic()
+    j = 0
+    try:
+        while rclpy.ok():
+            delay = t0 + j * step - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            period, g = divmod(j, len(groups))
+            rows = per_period[period % len(per_period)]
+            now = time.time_ns()
+            members = groups[g]
+            pub.publish(
+                write_taxel_batch(
+                    now,
+                    "",
+                    [fixed[k][0] for k in members],
+                    [fixed[k][1] for k in members],
+                    [now] * len(members),
+                    [fixed[k][2] for k in members],
+                    [rows[k][0] for k in members],
+                    [rows[k][1] for k in members],
+                    [fixed[k][3] for k in members],
+                )
+            )
+            j += 1
+    except KeyboardInterrupt:
+        pass
+    node.destroy_node()
+    rclpy.try_shutdown()
+
+
+# -- a phase ------------------------------------------------------------------------------------
+def cpu_seconds(pid: int) -> float:
+    import psutil
+
+    t = psutil.Process(pid).cpu_times()
+    return t.user + t.system
+
+
+def memory(pid: int) -> tuple[float, float]:
+    """(resident, unique) memory of ``pid`` [MB]."""
+    import psutil
+
+    m = psutil.Process(pid).memory_full_info()
+    return m.rss / 1e6, m.uss / 1e6
+
+
+def run_phase(
+    layout: Path,
+    bundles: Path,
+    scene: str,
+    consumers: str,
+    workers: int,
+    rate_hz: float,
+    group: int,
+    seconds: float,
+    warmup: float = 5.0,
+    profile_s: float = 0.0,
+) -> dict:
+    """One measured run: the source, ``workers`` workers (or the relay when ``consumers`` is
+    "relay"), a probe; patch-frames offered and summarised, CPU, latency, memory, and with
+    ``profile_s`` py-spy on the first consumer after the window."""
+    from rclpy.experimental import EventsExecutor
+    from rclpy.node import Node
+
+    from tactile_contact.model.layout import load_layout
+    from tactile_contact.msg import ContactArray, ReconstructionWorker, TaxelBatch
+    from tactile_contact.ros.cdr import read_contact_array, read_taxel_batch
+    from tactile_contact.ros.common import SENSOR_QOS
+    from tactile_contact.ros.worker_link import HEARTBEAT_QOS, TOPIC
+
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    names = [p.name for p in load_layout(layout).patches]
+    procs = []
+    if consumers == "relay":
+        procs.append(
+            subprocess.Popen(
+                [sys.executable, str(ROOT / "bench" / "load_relay_batches.py"), *names],
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+                env=env,
+            )
+        )
+    else:
+        for i in range(workers):
+            exe = str(ROOT / "scripts" / "contact_reconstruction")
+            args = [exe, "--ros-args", "-p", f"bundles_dir:={bundles}", "-p", f"layout:={layout}"]
+            args += ["-p", "input:=batches", "-p", f"worker_index:={i}"]
+            args += ["-p", f"worker_count:={workers}"]
+            procs.append(
+                subprocess.Popen(
+                    [sys.executable, *args],
+                    stdout=subprocess.DEVNULL,
+                    stderr=subprocess.DEVNULL,
+                    env=env,
+                )
+            )
+    source = subprocess.Popen(
+        [sys.executable, __file__, "--source-child", str(layout), scene, str(rate_hz), str(group)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        env=env,
+        text=True,
+    )
+    assert source.stdout is not None and source.stdin is not None
+    assert source.stdout.readline().startswith("READY")
+    probe = Node("workers_probe")
+    lock = threading.Lock()
+    rows: collections.Counter[str] = collections.Counter()
+    offered: collections.Counter[str] = collections.Counter()
+    states: collections.Counter[int] = collections.Counter()
+    latency: list[float] = []
+    serving: dict[str, int] = {}
+    measuring = threading.Event()
+
+    def on_contacts(data: bytes) -> None:
+        if measuring.is_set():
+            _, r = read_contact_array(data)
+            with lock:
+                rows.update(r.patches)
+                states.update(r.states)
+                latency.extend(r.latency)
+
+    def on_batch(data: bytes) -> None:
+        if measuring.is_set():
+            view = read_taxel_batch(data)
+            with lock:
+                offered.update(view.patches)
+
+    def on_worker(m: ReconstructionWorker) -> None:
+        with lock:
+            serving[m.worker] = len(m.patches)
+
+    probe.create_subscription(ContactArray, "contacts", on_contacts, SENSOR_QOS, raw=True)
+    probe.create_subscription(TaxelBatch, "taxel_batches", on_batch, SENSOR_QOS, raw=True)
+    probe.create_subscription(ReconstructionWorker, TOPIC, on_worker, HEARTBEAT_QOS)
+    executor = EventsExecutor()
+    executor.add_node(probe)
+    stop = threading.Event()
+    spinner = threading.Thread(
+        target=lambda: [executor.spin_once(timeout_sec=0.05) for _ in iter(stop.is_set, True)]
+    )
+    spinner.start()
+
+    def ready() -> bool:
+        with lock:
+            up = sum(1 for n in serving.values() if n > 0)
+        # (the probe's own subscription to taxel_batches counted too)
+        return up >= len(procs) and probe.count_subscribers("taxel_batches") >= len(procs) + 1
+
+    deadline = time.monotonic() + 300.0
+    while not ready():
+        if time.monotonic() > deadline:
+            raise SystemExit(f"the {consumers} did not come up in 300 s")
+        time.sleep(0.2)
+    source.stdin.write("GO\n")
+    source.stdin.flush()
+    time.sleep(warmup)  # numba, caches, the fusion's windows
+    c0 = [cpu_seconds(p.pid) for p in procs]
+    measuring.set()
+    w0 = time.monotonic()
+    time.sleep(seconds)
+    measuring.clear()
+    wall = time.monotonic() - w0
+    c1 = [cpu_seconds(p.pid) for p in procs]
+    mem = [memory(p.pid) for p in procs]
+    prof = profile(procs[0].pid, profile_s, OUT / f"profile_{consumers}.txt") if profile_s else ""
+    time.sleep(0.2)  # (summaries of the window's last batches)
+    with lock:
+        got, sent = sum(rows.values()), sum(offered.values())
+        lat = np.asarray(latency) * 1e3
+        kinds = {ContactArray.IDLE: "idle", ContactArray.CONTACT: "solved in contact"}
+        kinds.update({ContactArray.HELD: "held", ContactArray.FAILED: "failed"})
+        share = {kinds.get(k, str(k)): n / max(got, 1) for k, n in states.items()}
+    for p in (source, *procs):
+        p.send_signal(signal.SIGINT)
+    for p in (source, *procs):
+        try:
+            p.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            p.kill()
+    stop.set()
+    spinner.join(5.0)
+    executor.shutdown()
+    probe.destroy_node()
+    cpu = [(b - a) / wall for a, b in zip(c0, c1, strict=True)]
+    return {
+        "consumers": consumers,
+        "workers": len(procs),
+        "patches": len(names),
+        "scene": scene,
+        "rate_hz": rate_hz,
+        "cpu": cpu,
+        "offered_per_s": sent / wall,
+        "frames_per_s": got / wall,
+        # patch-frames sent in the window that no summary carried (±1 batch at its edges)
+        "skipped": max(sent - got, 0),
+        "skipped_share": max(sent - got, 0) / max(sent, 1),
+        "states": share,
+        "cpu_per_frame_us": sum(cpu) * wall / max(got, 1) * 1e6,
+        "lat_p50": float(np.percentile(lat, 50)) if lat.size else float("nan"),
+        "lat_p99": float(np.percentile(lat, 99)) if lat.size else float("nan"),
+        "lat_max": float(lat.max()) if lat.size else float("nan"),
+        "rss_mb": [m[0] for m in mem],
+        "uss_mb": [m[1] for m in mem],
+        "profile": prof,
+    }
+
+
+def table(results: dict[str, dict]) -> list[str]:
+    """The phases as one markdown table (CPU per patch-frame also as a ratio to the relay's of
+    the same layout and run)."""
+    relay = {
+        r["patches"]: r["cpu_per_frame_us"]
+        for r in results.values()
+        if r["workers"] == 1 and r["consumers"] == "relay"
+    }
+    out = [
+        "| phase | patches | scene | workers | offered /s | summarised /s | skipped | "
+        "latency p50 / p99 / max ms | CPU (of a core) | µs a patch-frame | × relay | "
+        "resident / unique MB a worker |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for key, r in results.items():
+        base = relay.get(r["patches"])
+        ratio = f"×{r['cpu_per_frame_us'] / base:.2f}" if base else "-"
+        mem = ", ".join(f"{a:.0f} / {b:.0f}" for a, b in zip(r["rss_mb"], r["uss_mb"], strict=True))
+        out.append(
+            f"| {key} | {r['patches']} | {r['scene']} | "
+            f"{'relay' if r['consumers'] == 'relay' else r['workers']} | "
+            f"{r['offered_per_s']:.0f} | {r['frames_per_s']:.0f} | "
+            f"{r['skipped']} ({r['skipped_share']:.1%}) | "
+            f"{r['lat_p50']:.2f} / {r['lat_p99']:.2f} / {r['lat_max']:.1f} | "
+            f"{' + '.join(f'{c:.0%}' for c in r['cpu'])} | {r['cpu_per_frame_us']:.0f} | "
+            f"{ratio} | {mem} |"
+        )
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument(
+        "--phases",
+        nargs="+",
+        default=["kinds", "scale", "saturation", "robot"],
+        choices=["kinds", "scale", "saturation", "robot"],
+    )
+    ap.add_argument("--seconds", type=float, default=20.0, help="measured time of a phase")
+    ap.add_argument("--warmup", type=float, default=5.0, help="before the window of a phase")
+    ap.add_argument("--quick", action="store_true", help="3 s phases after 3 s of warm-up")
+    ap.add_argument("--rate", type=float, default=200.0, help="saturation: periods a second")
+    ap.add_argument("--group", type=int, default=3, help="patches per batch (24-patch skin)")
+    ap.add_argument("--profile", type=float, default=0.0, help="py-spy a worker S s a phase")
+    ap.add_argument("--out", type=Path, help="also write workers.md and workers.json here")
+    ap.add_argument("--source-child", nargs=4, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.source_child:
+        layout, scene, rate, group = args.source_child
+        source_process(Path(layout), scene, float(rate), int(group))
+        return 0
+    if args.quick:
+        args.seconds, args.warmup = 3.0, 3.0
+    import rclpy
+
+    from tactile_contact.offline.build import build_layout
+
+    OUT.mkdir(parents=True, exist_ok=True)
+    layout24 = multi_patch_layout(24, OUT)
+    bundles24 = ROOT / "out" / "bench_load" / "bundles"  # (bench_load's: the same 24 patches)
+    build_layout(layout24, bundles24, jobs=2)
+    rclpy.init()
+    lines: list[str] = []
+    results: dict[str, dict] = {}
+
+    def say(text: str) -> None:
+        print(text, flush=True)
+        lines.append(text)
+
+    def phase(key: str, *a: object) -> dict:
+        r = run_phase(*a, args.warmup, args.profile)  # type: ignore[arg-type]
+        results[key] = r
+        say(
+            f"{key}: {r['offered_per_s']:.0f} patch-frames/s offered, {r['frames_per_s']:.0f} "
+            f"summarised, {r['skipped']} skipped ({r['skipped_share']:.1%}); CPU "
+            f"{' + '.join(f'{c:.0%}' for c in r['cpu'])} of a core, "
+            f"{r['cpu_per_frame_us']:.0f} µs a patch-frame; latency p50 {r['lat_p50']:.2f} ms, "
+            f"p99 {r['lat_p99']:.2f} ms, max {r['lat_max']:.1f} ms; rows "
+            + ", ".join(f"{k} {v:.0%}" for k, v in r["states"].items())
+            + f"; memory {', '.join(f'{m:.0f}' for m in r['rss_mb'])} MB resident "
+            f"({', '.join(f'{m:.0f}' for m in r['uss_mb'])} MB unique)"
+        )
+        if r["profile"]:
+            say(r["profile"])
+        return r
+
+    say(f"load average before: {os.getloadavg()[0]:.2f}; {os.cpu_count()} cores")
+    rate, n, g = 1000.0 / PERIOD_MS, args.seconds, args.group
+    if "kinds" in args.phases or "scale" in args.phases:
+        say(f"-- 24 patches of 72 taxels at 50 Hz, {g} a batch --")
+        relay = phase("relay, 24 patches", layout24, bundles24, "sliding", "relay", 1, rate, g, n)
+    if "kinds" in args.phases:
+        for scene in ("idle", "held", "sliding"):
+            r = phase(f"{scene}, 1 worker", layout24, bundles24, scene, "workers", 1, rate, g, n)
+            say(
+                f"   {scene}: {r['cpu_per_frame_us']:.0f} µs a patch-frame all-in, "
+                f"×{r['cpu_per_frame_us'] / relay['cpu_per_frame_us']:.2f} the relay's "
+                f"{relay['cpu_per_frame_us']:.0f} µs"
+            )
+    if "scale" in args.phases:
+        phase("(a) sliding, 2 workers", layout24, bundles24, "sliding", "workers", 2, rate, g, n)
+    if "saturation" in args.phases:
+        say(f"-- saturation: 24 sliding patches offered at {args.rate:.0f} Hz, {g} a batch --")
+        one = phase(
+            "saturation, 1 worker", layout24, bundles24, "sliding", "workers", 1, args.rate, g, n
+        )
+        two = phase(
+            "saturation, 2 workers", layout24, bundles24, "sliding", "workers", 2, args.rate, g, n
+        )
+        say(
+            f"   throughput 2 workers / 1 worker: ×{two['frames_per_s'] / one['frames_per_s']:.2f}"
+            f" ({one['frames_per_s']:.0f} → {two['frames_per_s']:.0f} patch-frames/s)"
+        )
+    if "robot" in args.phases:
+        build_layout(ROBOT, ROBOT_BUNDLES, jobs=2)
+        say("-- the whole robot (34 patches, 3928 taxels, 7 buses), one batch a bus --")
+        phase("relay, robot", ROBOT, ROBOT_BUNDLES, "typical", "relay", 1, rate, 0, n)
+        for w in (1, 2):
+            phase(
+                f"(b) typical, {w} worker(s)",
+                ROBOT,
+                ROBOT_BUNDLES,
+                "typical",
+                "workers",
+                w,
+                rate,
+                0,
+                n,
+            )
+    say(f"load average after: {os.getloadavg()[0]:.2f}")
+    say("")
+    for line in table(results):
+        say(line)
+    rclpy.try_shutdown()
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
+        cmd = " ".join(["python bench/bench_workers.py", *sys.argv[1:]])
+        (args.out / "workers.md").write_text(
+            f"# Reconstruction workers under load (bench/bench_workers.py)\n\n`{cmd}`\n\n```\n"
+            + "\n".join(lines)
+            + "\n```\n"
+        )
+        (args.out / "workers.json").write_text(json.dumps(results, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
