@@ -12,8 +12,17 @@ presses the skin with an indenter on a force sensor at known places; this module
 by least squares over all presses, and writes bundles built with them
 (``tactile-contact-calibrate LAYOUT.yaml PRESSES.npz -o BUNDLE_DIR``). When the presses name
 their indenter (``indenter``: "sphere 12 mm", "cylinder 3 mm", … or "hertz:R" / "punch:a" with
-R, a in mm) each press is predicted exactly; otherwise each press's contact (profile and size)
-is fitted too, which needs more presses. No ROS import.
+R, a in mm) each press is predicted exactly; otherwise each press's contact (profile and a
+continuous radius) is fitted too, from two starts (:func:`fit_quality.free_fit`): a press's
+contact size trades against the footprint and the layer, so such presses pin the response
+less well.
+
+Every fit carries its parameters' 1-σ errors and correlations from its Jacobian
+(:mod:`tactile_contact.offline.fit_quality`) and a report in words
+(:mod:`tactile_contact.offline.calibration_report`), printed and kept in the bundle manifest's
+``calibration``. A fit whose gain is uncertain beyond MAX_GAIN_SIGMA is refused (exit 1, what
+the presses cannot pin and what to add) unless ``--accept-uncertain``: never a silently biased
+bundle (docs/calibration.md). No ROS import.
 
 The presses file (PRESSES.npz) and the ``tactile-contact-presses`` command that makes it from a
 recorded session are in :mod:`tactile_contact.offline.presses`.
@@ -37,6 +46,14 @@ from numpy.typing import NDArray
 
 from tactile_contact.model.indenters import FlatPunch
 from tactile_contact.model.layout import LayoutError, PatchLayout, load_layout
+from tactile_contact.offline.calibration_report import report, unidentified_message
+from tactile_contact.offline.fit_quality import (
+    ambiguous,
+    free_fit,
+    jacobian,
+    press_profiles,
+    uncertainty,
+)
 from tactile_contact.offline.presses import (  # the names marked F401: importable from
     INDENTERS,  # noqa: F401                        here as before they moved to presses.py
     MIN_PRESSES,  # noqa: F401
@@ -55,6 +72,10 @@ LAYER_SCALES = tuple(np.round(np.arange(0.75, 1.251, 0.05), 4))
 REACH = 0.015
 #: Profiles tried for a press that names no indenter: contact radii [m] per family.
 FREE_RADII = tuple(float(a) for a in np.geomspace(0.5e-3, 8e-3, 16))
+#: Largest standard error of the gain [-] a bundle is written with (without --accept-uncertain):
+#: forces scale with the gain, so this is about the force error the calibration itself adds.
+#: Named presses of the paper's protocol pin it to ≈ 0.5 % (docs/calibration.md).
+MAX_GAIN_SIGMA = 0.02
 
 
 @dataclass(frozen=True)
@@ -80,11 +101,19 @@ class Calibration:
     readings: int
     seconds: float = 0.0
     grid: dict[str, Any] = field(default_factory=dict)
+    named: bool = True
+    uncertainty: dict[str, Any] = field(default_factory=dict)
+    press_residuals: list[float] = field(default_factory=list)
 
     def metadata(self) -> dict[str, Any]:
         d = asdict(self)
         d.pop("grid")
         return d
+
+    def identified(self) -> bool:
+        """Whether the presses pin the gain to MAX_GAIN_SIGMA (what a force is scaled by)."""
+        s = self.uncertainty.get("sigma", {}).get("gain", math.inf)
+        return bool(s <= MAX_GAIN_SIGMA)
 
 
 def _profiles(presses: Presses, young: float, poisson: float) -> tuple[list, NDArray[np.int64]]:
@@ -105,7 +134,8 @@ def calibrate(patch: PatchLayout, presses: Presses, *, progress: bool = False) -
     A grid over footprint radius × layer scale (FOOTPRINTS × LAYER_SCALES) with the gain in
     closed form at each point; a parabola through the best point and its neighbours along
     each axis refines both; the refined point is evaluated exactly for the reported gain and
-    residual.
+    residual. Presses without indenter names are then refined with continuous contact radii
+    (two starts, the better kept). The uncertainties come from the Jacobian at the result.
     """
     t0 = time.perf_counter()
     model = _PressModel(patch, presses)
@@ -133,9 +163,32 @@ def calibrate(patch: PatchLayout, presses: Presses, *, progress: bool = False) -
         )
     nominal, _ = model.cost(patch.model.layer_scale, np.array([patch.footprint]), gain=1.0)
     norm2, n_read = model.norm2, model.readings
+    free = model.index is None
+    gain = float(g1[0])
+    starts: list[dict[str, float]] = []
+    if free:  # each press's contact radius made continuous, then everything refined together
+        scale, foot, gain, fam, rad, jac, res, starts = free_fit(
+            model, cost, gains, feet, scales, (scale, foot, gain)
+        )
+        c1 = np.array([float(res @ res)])
+    else:
+        fam, rad = press_profiles(model, scale, foot, gain)
+        jac, res = jacobian(model, scale, foot, gain, fam, rad, False)
+    unc = uncertainty(jac, res, foot, len(fam) if free else 0).as_dict()
+    if starts:
+        unc["starts"] = starts
+        # two fits as good and far apart: the presses cannot tell them apart
+        if ambiguous(starts, unc["dof"], MAX_GAIN_SIGMA):
+            unc["sigma"]["gain"] = max(
+                unc["sigma"]["gain"], abs(starts[0]["gain"] - starts[1]["gain"])
+            )
+    rows = np.nonzero(model.use)[0]  # press of each fitted reading
+    r2 = np.bincount(rows, res * res, minlength=len(fam))
+    d2 = np.bincount(rows, presses.deflection[model.use] ** 2, minlength=len(fam))
+    per_press = np.sqrt(r2 / np.maximum(d2, 1e-300))
     return Calibration(
         footprint_radius=float(foot),
-        gain=float(g1[0]),
+        gain=gain,
         layer_scale=float(scale),
         residual=math.sqrt(float(c1[0]) / max(n_read, 1)),
         relative_residual=math.sqrt(float(c1[0]) / norm2),
@@ -148,6 +201,9 @@ def calibrate(patch: PatchLayout, presses: Presses, *, progress: bool = False) -
             "layer_scales": scales.tolist(),
             "relative_residual": np.sqrt(cost / norm2).tolist(),
         },
+        named=not free,
+        uncertainty=unc,
+        press_residuals=[round(float(v), 4) for v in per_press],
     )
 
 
@@ -180,7 +236,7 @@ class _PressModel:
             self.profiles, self.index = _profiles(presses, e.young, e.poisson)
         else:
             self.profiles, self.index = [(f, a) for f in (0, 1) for a in FREE_RADII], None
-        self.step = 1e-4
+        self.step, self.reach = 1e-4, REACH
         j = np.minimum(dist, REACH) / self.step
         self.jl = np.floor(j).astype(np.int64)
         self.w = j - self.jl
@@ -260,11 +316,25 @@ def calibrated_layout(layout_doc: dict[str, Any], patch: str, cal: Calibration) 
     raise CalibrationError(f"patch {patch!r} not in the layout")
 
 
-def write_bundle(layout_path: Path, patch_name: str, cal: Calibration, out_dir: Path) -> Path:
-    """Write the calibrated layout YAML and the patch's bundle under ``out_dir``."""
+def write_bundle(
+    layout_path: Path,
+    patch_name: str,
+    cal: Calibration,
+    out_dir: Path,
+    *,
+    accept_uncertain: bool = False,
+) -> Path:
+    """Write the calibrated layout YAML and the patch's bundle under ``out_dir``.
+
+    Raises CalibrationError (what the presses cannot pin, what to add) when the fit's gain is
+    uncertain beyond MAX_GAIN_SIGMA, unless ``accept_uncertain``: never a silently biased
+    bundle. The manifest's ``calibration`` keeps the fit, its uncertainties and the report.
+    """
     from tactile_contact.offline.build import build_patch
     from tactile_contact.offline.bundle import save_bundle
 
+    if not cal.identified() and not accept_uncertain:
+        raise CalibrationError(unidentified_message(cal, MAX_GAIN_SIGMA))
     out_dir.mkdir(parents=True, exist_ok=True)
     doc = yaml.safe_load(layout_path.read_text())
     new = calibrated_layout(doc, patch_name, cal)
@@ -277,7 +347,10 @@ def write_bundle(layout_path: Path, patch_name: str, cal: Calibration, out_dir: 
     patch = load_layout(lay_out).patch(patch_name)
     manifest, arrays = build_patch(patch)
     manifest["layout_source"] = str(lay_out.resolve())
-    manifest["calibration"] = cal.metadata()
+    manifest["calibration"] = cal.metadata() | {
+        "identified": cal.identified(),
+        "report": report(cal, MAX_GAIN_SIGMA),
+    }
     return save_bundle(out_dir / patch_name, manifest, arrays)
 
 
@@ -292,7 +365,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("-o", "--out", type=Path, required=True, help="bundle directory to write")
     ap.add_argument("--patch", help="patch the presses belong to (default: the only one)")
     ap.add_argument("--json", action="store_true", help="print the result as JSON")
+    ap.add_argument(
+        "--accept-uncertain",
+        action="store_true",
+        help=f"write the bundle even when the presses pin the gain to worse than "
+        f"±{MAX_GAIN_SIGMA:.0%} (1 σ); the manifest keeps the uncertainties",
+    )
     args = ap.parse_args(argv)
+    cal = None
     try:
         lay = load_layout(args.layout)
         if args.patch is None and len(lay.patches) != 1:
@@ -301,22 +381,44 @@ def main(argv: list[str] | None = None) -> int:
         patch = lay.patch(args.patch) if args.patch else lay.patches[0]
         presses = load_presses(args.presses, patch)
         cal = calibrate(patch, presses, progress=not args.json)
-        path = write_bundle(args.layout, patch.name, cal, args.out)
+        if not args.json:
+            _print_fit(patch.name, cal)
+        path = write_bundle(
+            args.layout, patch.name, cal, args.out, accept_uncertain=args.accept_uncertain
+        )
     except (CalibrationError, LayoutError, KeyError, OSError) as e:
+        if cal is not None and args.json:
+            print(json.dumps(_json(cal, None), indent=2))
         print(f"ERROR: {e}", file=sys.stderr)
         return 1
     if args.json:
-        print(json.dumps(cal.metadata(), indent=2))
+        print(json.dumps(_json(cal, path), indent=2))
     else:
-        print(
-            f"{patch.name}: footprint radius {cal.footprint_radius * 1e3:.2f} mm, "
-            f"gain {cal.gain:.4f}, layer scale {cal.layer_scale:.3f}; "
-            f"residual {cal.residual * 1e6:.3f} µm RMS = {cal.relative_residual:.2%} of the "
-            f"readings (nominal response: {cal.nominal_relative_residual:.2%}); "
-            f"{cal.presses} presses, {cal.readings} readings, {cal.seconds:.0f} s"
-        )
+        if not cal.identified():
+            print(f"WARNING: {unidentified_message(cal, MAX_GAIN_SIGMA)}", file=sys.stderr)
         print(f"bundle: {path}")
     return 0
+
+
+def _print_fit(name: str, cal: Calibration) -> None:
+    """The fitted parameters, then the report in words."""
+    print(
+        f"{name}: footprint radius {cal.footprint_radius * 1e3:.2f} mm, "
+        f"gain {cal.gain:.4f}, layer scale {cal.layer_scale:.3f}; "
+        f"residual {cal.residual * 1e6:.3f} µm RMS = {cal.relative_residual:.2%} of the "
+        f"readings (nominal response: {cal.nominal_relative_residual:.2%}); "
+        f"{cal.presses} presses, {cal.readings} readings, {cal.seconds:.0f} s"
+    )
+    for line in report(cal, MAX_GAIN_SIGMA):
+        print(f"  {line}")
+
+
+def _json(cal: Calibration, path: Path | None) -> dict[str, Any]:
+    return cal.metadata() | {
+        "identified": cal.identified(),
+        "report": report(cal, MAX_GAIN_SIGMA),
+        "bundle": str(path) if path else None,
+    }
 
 
 if __name__ == "__main__":
