@@ -34,14 +34,24 @@ def grade(cal: Calibration) -> str:
 def unidentified_message(cal: Calibration, limit: float) -> str:
     """Why the bundle is not written: what the presses cannot pin and what to add."""
     u = cal.uncertainty
-    sg = u["sigma"]["gain"]
+    sf, sg = _force_sigma(u), u["sigma"]["gain"]
     a, b, c = _strongest(u)
+    which = "the forces' scale" if cal.named else "each of them, with no indenter named"
     head = (
-        f"the presses do not pin the taxel response: gain ±{sg:.1%} (1 σ; at most ±{limit:.0%} "
-        f"is accepted), {a} and {b} trade against each other (correlation {c:+.2f}); forces "
-        f"from such a bundle could be off by about {sg:.0%}. "
+        f"the presses do not pin the taxel response: forces' scale ±{sf:.1%}, gain ±{sg:.1%} "
+        f"(1 σ; at most ±{limit:.0%} is accepted for {which}); {a} and {b} trade against "
+        f"each other (correlation {c:+.2f}); forces from such a bundle could be off by "
+        f"{max(sf, sg):.0%} or more. "
     )
-    if not cal.named:
+    if grade(cal) != "good" and cal.relative_residual > 0.8 * cal.nominal_relative_residual:
+        why = (
+            f"The fit leaves {cal.relative_residual:.0%} of the readings unexplained, about as "
+            f"much as the nominal response ({cal.nominal_relative_residual:.0%}): the presses "
+            "do not match their readings. Check that positions are in metres in the patch "
+            "frame, forces in newtons from a zeroed sensor, readings in the bundle's taxel "
+            "order, and that each press is one round contact"
+        )
+    elif not cal.named:
         why = (
             "The presses name no indenter, so each press's contact size is fitted as well and "
             "takes the place of the footprint radius and layer scale. Add an 'indenter' entry "
@@ -58,6 +68,15 @@ def unidentified_message(cal: Calibration, limit: float) -> str:
         head + why + "; or pass --accept-uncertain to write the bundle anyway (its manifest "
         "keeps these uncertainties)."
     )
+
+
+def _force_sigma(u: dict, named: bool = True) -> float:
+    """The forces' 1-σ relative scale error (the gain's when the fit has none recorded);
+    for presses without indenter names the larger of it and the gain's (Calibration.identified).
+    """
+    s = u.get("sigma", {})
+    f = float(s.get("force_scale", s.get("gain", float("inf"))))
+    return f if named else max(f, float(s.get("gain", float("inf"))))
 
 
 def _strongest(u: dict) -> tuple[str, str, float]:
@@ -84,7 +103,7 @@ def report(cal: Calibration, limit: float) -> list[str]:
     }[g]
     tail = "of their RMS" if g == "good" else "of the readings unexplained"
     u = cal.uncertainty
-    pinned = bool(u) and u["sigma"]["gain"] <= limit
+    pinned = bool(u) and _force_sigma(u, cal.named) <= limit
     if not pinned:
         verdict = "NOT USABLE: the parameters are not identified; the response leaves"
         tail = "of the readings unexplained"
@@ -99,12 +118,13 @@ def report(cal: Calibration, limit: float) -> list[str]:
             f"parameters (±1 σ from the fit's Jacobian): gain {cal.gain:.4f} ± {s['gain']:.4f}, "
             f"footprint radius {cal.footprint_radius * 1e3:.2f} ± "
             f"{s['footprint_radius'] * 1e3:.2f} mm, layer scale {cal.layer_scale:.3f} ± "
-            f"{s['layer_scale']:.3f}; strongest correlation {a}–{b} {c:+.2f}"
+            f"{s['layer_scale']:.3f}; strongest correlation {a}–{b} {c:+.2f}; forces' scale "
+            f"± {_force_sigma(u):.1%}"
         )
     improve = []
     if not pinned:
         improve.append(
-            f"NOT IDENTIFIED (gain ±{u['sigma']['gain']:.1%} > ±{limit:.0%}): "
+            f"NOT IDENTIFIED (±{_force_sigma(u, cal.named):.1%} > ±{limit:.0%}): "
             + ("name each press's indenter" if not cal.named else "add presses")
         )
     if g != "good" and rho > 0.8 * nom:

@@ -171,9 +171,24 @@ def jacobian(
     return jac, res
 
 
-def uncertainty(jac: NDArray, res: NDArray, foot: float, free_presses: int) -> Uncertainty:
+def uncertainty(
+    jac: NDArray,
+    res: NDArray,
+    foot: float,
+    free_presses: int,
+    rows: NDArray[np.int64] | None = None,
+    gain: float = 1.0,
+) -> Uncertainty:
     """Standard errors and correlations of (gain, footprint, layer scale) from the Jacobian
-    ``jac`` and residual ``res`` of :func:`jacobian` (module docstring)."""
+    ``jac`` and residual ``res`` of :func:`jacobian` (module docstring).
+
+    With ``rows`` (the press of each reading) and the fitted ``gain``, also ``force_scale``:
+    the 1-σ relative error of the forces a bundle of this fit gives, from how θ's errors move
+    each press's predicted amplitude (its projection on the prediction p = gain·J[:, 0]):
+    ∂ log A_n / ∂θ_j = Σ_k J_kj p_k / (gain Σ_k p_k²), σ_n² = dᵀ cov_θ d, RMS over presses.
+    Gain and layer scale are strongly anti-correlated (a thicker layer reads more per newton,
+    a lower gain less): the force scale they set together is pinned far better than either.
+    """
     m = jac.shape[0]
     norms = np.linalg.norm(jac, axis=0)
     live = norms > 0  # a press whose readings do not move with its radius adds nothing
@@ -199,8 +214,27 @@ def uncertainty(jac: NDArray, res: NDArray, foot: float, free_presses: int) -> U
         s_foot = s_area / (2 * foot)
     else:
         s_foot = math.sqrt(s_area)
+    sigma = {"gain": float(sig[0]), "footprint_radius": s_foot, "layer_scale": float(sig[2])}
+    if rows is not None:
+        if not np.all(np.isfinite(sig)):
+            sigma["force_scale"] = math.inf
+        else:
+            cov_t = cov[:3, :3] / np.outer(norms[:3], norms[:3])
+            p = jac[:, 0]
+            n = int(rows.max()) + 1 if len(rows) else 0
+            pp = np.bincount(rows, p * p, minlength=n)
+            ok = pp > 0
+            d = np.stack(
+                [
+                    np.bincount(rows, jac[:, j] * p, minlength=n)[ok] / (gain * pp[ok])
+                    for j in range(3)
+                ],
+                axis=1,
+            )  # (presses, 3)
+            var_n = np.einsum("ni,ij,nj->n", d, cov_t, d)
+            sigma["force_scale"] = float(math.sqrt(max(float(np.mean(var_n)), 0.0)))
     return Uncertainty(
-        sigma={"gain": float(sig[0]), "footprint_radius": s_foot, "layer_scale": float(sig[2])},
+        sigma=sigma,
         correlation=np.nan_to_num(corr).tolist(),
         nuisance=free_presses,
         dof=dof,
