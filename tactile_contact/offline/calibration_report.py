@@ -144,7 +144,8 @@ def report(cal: Calibration, limit: float) -> list[str]:
         improve.append(
             "presses far worse than the rest (index: relative residual): "
             + ", ".join(f"{i}: {r:.0%}" for i, r in bad)
-            + " — check their position, force and indenter"
+            + " — check their position, force and indenter, or whether they read little above "
+            "the noise (light presses, few counts)"
         )
     edges = []
     grid = cal.grid or {}
