@@ -21,7 +21,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from tactile_contact.inverse.contacts import ContactFitter, chi2, chi2_limit
+from tactile_contact.inverse.contacts import (
+    ContactFitter,
+    chi2,
+    chi2_limit,
+    on_skin,
+    skin_hull,
+)
 from tactile_contact.inverse.readings import Frame
 from tactile_contact.inverse.round_contact import (
     RoundFit,
@@ -118,6 +124,7 @@ class ContactFit:
         self.count_sigma = count_sigma
         self.contact_threshold = contact_threshold
         self.max_contacts = max_contacts
+        self._skin = skin_hull(taxel_xy)
 
     def fit(
         self, frame: Frame, start: NDArray | None, previous: Followed | None
@@ -135,6 +142,15 @@ class ContactFit:
             s = s / np.sqrt(frame.frames)
         limit = chi2_limit(len(d))
         fits, followed = None, None
+        # Readings in counts whose noise the caller did not pass: the fit measures it too
+        # (precise readings keep the scale-free path's own tests).
+        estimate = frame.estimate and frame.frames == 1 and frame.quantised
+        # The posterior's error: the rounding's (one count/√6), not a learnt noise level; the
+        # mean of a held scene's frames, that mean's noise; readings noisier than assumed,
+        # their own (below).
+        post = self.count_sigma
+        if frame.frames != 1:
+            post = max(float(np.median(s)), FUSED_POSTERIOR_FLOOR * self.count_sigma)
         if previous is not None:
             # The posterior spans both families anyway: only the followed one is fitted.
             single = follow_round_contact(
@@ -154,15 +170,22 @@ class ContactFit:
             s,
             self.max_contacts,
             precise=frame.scale_free,
+            estimate_noise=estimate,
         )
         if fits is None:
             if start is None:
                 return None
             found = fitter.fit(xy, d, np.asarray(start, dtype=np.float64))
-            if found is None:
+            if found is None or not all(on_skin(self._skin, f.center) for f in found[0]):
                 return None
             fits = found[0]
             pred = fitter.predicted(fits, xy)
+            if estimate:
+                # No noise level passed: the readings' own, as the taxels beyond the contacts
+                # read it, where larger than assumed (the χ² test and the posterior's width).
+                far = fitter.far_noise(fits, xy, d)
+                if far is not None and far > float(np.max(s)):
+                    s, post = np.maximum(s, far), max(post, far)
             misfit = chi2(pred, d, s, ROUND_MODEL_ERROR)
             if misfit > limit:
                 return None
@@ -177,9 +200,6 @@ class ContactFit:
             # (round_contact.posterior_contact) instead of the least-squares point. Its error is
             # the rounding's (one count/√6), not the learnt noise level: unless the contact is
             # followed, the same readings give the same contact whatever frames came before.
-            post = self.count_sigma
-            if frame.frames != 1:
-                post = max(float(np.median(s)), FUSED_POSTERIOR_FLOOR * self.count_sigma)
             fits = [posterior_contact(self.tables, xy, d, fits[0], post)]
             pred = fitter.predicted(fits, xy)
         return RoundContacts(fits, float(np.linalg.norm(pred - d)), followed)

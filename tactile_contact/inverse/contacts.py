@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from tactile_contact.inverse.detection import ROBUST_CAP, robust_scale
 from tactile_contact.inverse.round_contact import (
     RoundFit,
     RoundTables,
@@ -43,6 +44,10 @@ MULTI_CONTACT_EVIDENCE = 25.0
 START_REACH = 12.0e-3
 #: The second search start is used only when it is farther than this [m] from the first.
 START_APART = 1.5e-3
+#: A fitted contact must press within this distance [m] of the hull of the taxel centres: the
+#: skin ends 1.5–2 mm beyond its outer taxels. Beyond, a fit explains noise with a contact no
+#: taxel reads (1 count of noise: 10.8 N fitted 6.4 mm off the patch for a 2.3 N press).
+SKIN_MARGIN = 2.0e-3
 #: Taxels within this distance [m] of a search start are fitted (round_contact's ``near``).
 REACH = 0.015
 #: The search's check (ContactFitter.unexplained) takes the noise from the taxels beyond
@@ -99,8 +104,10 @@ class ContactFitter:
         None when no round contact has a positive force."""
         start = self.starts(cop, xy, d)
         single = fit_round_contact(self.tables, xy, d, start, sigma=self.sigma)
-        if single is not None and self.unexplained(single, xy, d, start):
-            # A false valley, or a contact the usual search did not reach: search wider.
+        if single is not None and self.precise and self.unexplained(single, xy, d, start):
+            # A false valley, or a contact the usual search did not reach: search wider. (Only
+            # precise readings: with 8-bit counts the noise blurs the valleys the search tells
+            # apart, 0 of 200 random presses triggered it, and on noise alone it only cost.)
             for again in (
                 fit_round_contact(self.tables, xy, d, start, sigma=self.sigma, thorough=True),
                 hop_round_contact(self.tables, xy, d, single, sigma=self.sigma),
@@ -169,13 +176,20 @@ class ContactFitter:
     def far_noise(self, fits: list[RoundFit], xy: NDArray, d: NDArray) -> float | None:
         """RMS residual [m] of the contacts ``fits`` over the taxels farther than REACH from
         each (at least FAR_TAXELS of them; else None): the readings' noise, measured where no
-        contact is fitted (the residual there is not pulled down by the fit)."""
+        contact is fitted (the residual there is not pulled down by the fit). Readings in
+        counts (not ``precise``): at most ROBUST_CAP times the level the share of those taxels
+        off by half a count or more gives (:func:`robust_scale`), so that a second contact
+        among them does not read as noise (it would then hide itself from the seeds)."""
         centres = np.array([f.center for f in fits]).reshape(-1, 2)
         far = distance_to_points(xy, centres) > REACH
         if far.sum() < FAR_TAXELS:
             return None
         res = self.predicted(fits, xy)[far] - d[far]
-        return float(np.sqrt(np.mean(res * res)))
+        rms = float(np.sqrt(np.mean(res * res)))
+        if self.precise:
+            return rms
+        half = 0.5 * math.sqrt(6.0) * self.count_sigma  # half a count [m]
+        return min(rms, ROBUST_CAP * robust_scale(res, half))
 
     def _misfit(self, fit: RoundFit, xy: NDArray, d: NDArray) -> float:
         """Σ ((prediction − reading)/σ)² of ``fit`` over every taxel (σ: ``sigma``, or 1)."""
@@ -260,6 +274,25 @@ class ContactFitter:
             ):
                 seeds.append(int(i))
         return seeds
+
+
+def skin_hull(taxel_xy: NDArray) -> NDArray[np.float64] | None:
+    """(H, 3) half-planes n·x + b ≤ 0 [m] of the convex hull of the taxel centres (K, 2) [m],
+    or None when they span no area (fewer than three, or in a line)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        return np.asarray(ConvexHull(np.asarray(taxel_xy, dtype=np.float64)).equations)
+    except (QhullError, ValueError):
+        return None
+
+
+def on_skin(hull: NDArray | None, centre: tuple[float, float], margin: float = SKIN_MARGIN) -> bool:
+    """Whether ``centre`` [m] lies within ``margin`` [m] of the taxel hull ``hull``
+    (:func:`skin_hull`; None: anywhere)."""
+    if hull is None:
+        return True
+    return bool(np.max(hull[:, :2] @ np.asarray(centre, dtype=np.float64) + hull[:, 2]) <= margin)
 
 
 def chi2(pred: NDArray, d: NDArray, sigma: float | NDArray, model_error: float) -> float:

@@ -37,6 +37,10 @@ class Frame:
             the frames scatter more than sigma says). Detection's statistics and the fit's
             weights are those of the mean; ``sigma`` stays one frame's (the detector's filters
             are built for it).
+        estimate: the caller passed no noise level: ``sigma`` is the sensor model's, the least
+            noise assumed; detection and the fit estimate the frame's own when it is larger
+            (:meth:`tactile_contact.inverse.detection.ContactDetector.detect_estimated`,
+            :meth:`tactile_contact.inverse.contacts.ContactFitter.far_noise`).
     """
 
     delta: NDArray[np.float64]
@@ -45,6 +49,7 @@ class Frame:
     quantised: bool = True
     scale_free: bool = False
     frames: float = 1.0
+    estimate: bool = False
 
     @property
     def used(self) -> int:

@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from tactile_contact.inverse.contact_fit import ContactFit, Followed, RoundContacts
+from tactile_contact.inverse.detection import ASSUMED
 from tactile_contact.inverse.grid_fallback import GridFallback
 from tactile_contact.inverse.readings import Frame, ReadingModel
 from tactile_contact.inverse.result import ContactResult, Request, ResultMaker
@@ -269,7 +270,7 @@ class Reconstructor:
         layout's sensor model (``default_noise``).
         """
         delta, ok = self.readings.from_delta_c(delta_c, valid)
-        frame = Frame(delta, ok, self.readings.noise(noise))
+        frame = Frame(delta, ok, self.readings.noise(noise), estimate=noise is None)
         if self.fusion is not None:
             return self.fusion.step_frame(frame, want_traction, want_deflection)
         return self._solve(frame, want_traction, want_deflection)
@@ -295,7 +296,9 @@ class Reconstructor:
         # (posterior over the quantisation valley); others as precise, of unknown noise
         # (scale-free detection, least-squares contact).
         quantised = noise is not None or self.readings.on_count_lattice(d, ok)
-        frame = Frame(d, ok, sigma, quantised=quantised, scale_free=not quantised)
+        frame = Frame(
+            d, ok, sigma, quantised=quantised, scale_free=not quantised, estimate=noise is None
+        )
         if self.fusion is not None:
             return self.fusion.step_frame(frame, want_traction, want_deflection)
         return self._solve(frame, want_traction, want_deflection)
@@ -331,20 +334,28 @@ class Reconstructor:
                 elif det.confirms(dz, fit.predicted(found.fits, frame.ok), frame.scale_free):
                     contacts, self.followed = found, found.followed
             if contacts is None:
-                hit, k = det.detect(dz, frame.scale_free)
+                noise = ASSUMED
+                if frame.estimate and frame.frames == 1:
+                    # No noise level passed: the frame's own where it exceeds the assumed one
+                    # (a skin noisier than its sensor model must not read as contact).
+                    hit, k, noise = det.detect_estimated(dz, frame.scale_free, frame.ok)
+                else:
+                    hit, k = det.detect(dz, frame.scale_free)
                 start = det.centres[k]
                 if not hit:
                     # A near miss (a small contact between the bank's places or sizes) is
                     # fitted, and reported if the fit's own matched filter clears the refined
                     # test.
-                    if direct and det.near_miss(dz, k, frame.scale_free):
+                    if direct and det.near_miss(dz, k, frame.scale_free, noise):
                         found = fit.fit(frame, start, previous)
                         if found is not None:
                             # Unconfirmed, it stays the contact to follow: what the next frame
                             # reports from it must clear the same refined test.
                             self.followed = found.followed
                             predicted = fit.predicted(found.fits, frame.ok)
-                            if det.confirms(dz, predicted, frame.scale_free):
+                            if noise.dof:  # the noise the fitted contact leaves, not the bank
+                                noise = det.residual_noise(dz, predicted, frame.ok)
+                            if det.confirms(dz, predicted, frame.scale_free, noise):
                                 contacts = found
                     if contacts is None:
                         return self.results.zero(request)
