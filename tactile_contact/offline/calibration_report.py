@@ -57,7 +57,7 @@ def unidentified_message(cal: Calibration, limit: float) -> str:
             "takes the place of the footprint radius and layer scale. Add an 'indenter' entry "
             "to the presses file naming each press's indenter ('sphere 12 mm', 'sphere 6 mm', "
             "'cylinder 12 mm', 'cylinder 3 mm', or 'hertz:R' / 'punch:a' with R, a in mm): "
-            "presses of one known sphere or cylinder are enough"
+            "a session pressed with one known sphere or cylinder needs only its name on every press"
         )
     else:
         why = (
