@@ -27,6 +27,7 @@ rate instead of the normal one (:class:`FrameNoise`). No ROS import.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -34,18 +35,20 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import ndtri
 from scipy.stats import beta
+from scipy.stats import chi2 as chi2_dist
 from scipy.stats import t as student_t
 
 #: A bank statistic at these fractions of its thresholds (z, share) or more sends the frame
 #: to the refined test (ContactDetector.near_miss): each about 2-5 % of white-noise frames.
 NEAR_Z, NEAR_SHARE = 0.6, 0.5
 
-#: A frame's estimated noise (:meth:`ContactDetector.frame_noise`) replaces the assumed level
-#: only above this share of it. Below, the normal thresholds stand; the share keeps the rate
-#: where the true noise is a little above the assumed one (1.1-1.3×: there an estimate below
-#: the assumed level and a normal threshold would leak up to 16× the stated rate; with 0.95,
-#: at most 4×, and the t test's own share holds).
-ESTIMATE_MARGIN = 0.95
+#: A frame's estimated noise (:meth:`ContactDetector.frame_noise`) keeps the normal thresholds
+#: only when its upper confidence bound (this tail of its χ²) is at most the assumed level;
+#: otherwise the t test runs on the estimate, and at least the assumed level. Why: gated on the
+#: estimate itself (above 0.95 of the assumed level), 0.5-count noise (1.4× the assumed) whose
+#: far taxels happened to read low took the normal thresholds: 5 false contacts in 6·10⁵
+#: frames (1.5 per hour), every one there.
+NOISE_CONFIDENCE = 1.0e-3
 
 #: Parameters of a fitted round contact (centre, size, force, and its family chosen).
 FITTED_PARAMETERS = 5
@@ -65,6 +68,22 @@ BIAS_DRAWS = 500
 #: ROBUST_CAP times the count's (on white noise it exceeds it in ≈ 1 % of frames).
 HALF_COUNT = math.sqrt(6.0) / 2.0
 ROBUST_CAP = 1.5
+
+
+def estimated(scale: float, dof: int) -> FrameNoise:
+    """The FrameNoise of an estimate ``scale`` (over the assumed level) on ``dof`` degrees of
+    freedom: ASSUMED (the normal thresholds) when even its upper bound at NOISE_CONFIDENCE,
+    scale·√(dof/χ²_dof(NOISE_CONFIDENCE)), is at most 1; else max(scale, 1) with ``dof`` (the t
+    test, never on less noise than assumed)."""
+    if scale * math.sqrt(dof / _chi2_low(dof)) <= 1.0:
+        return ASSUMED
+    return FrameNoise(max(scale, 1.0), dof)
+
+
+@functools.lru_cache(maxsize=512)
+def _chi2_low(dof: int) -> float:
+    """χ²_dof's NOISE_CONFIDENCE quantile."""
+    return float(chi2_dist.ppf(NOISE_CONFIDENCE, dof))
 
 
 def robust_scale(x: NDArray[np.float64], half: float = HALF_COUNT) -> float:
@@ -203,7 +222,7 @@ class ContactDetector:
         freedom (χ² on white noise of any level, and independent of the statistic, which
         reads the other taxels: the t test's premise). Fewer than FAR_TAXELS such taxels: the
         energy the best filter leaves, √((‖δ/σ‖² − z²)/(used − 1)). Estimated (dof > 0) only
-        above ESTIMATE_MARGIN of the assumed level.
+        when the noise may exceed the assumed level (:func:`estimated`).
 
         Why not the energy the best filter leaves everywhere: the largest of the bank's
         statistics takes the most noise energy with it (the estimate's variance came out
@@ -226,7 +245,7 @@ class ContactDetector:
             z = float(self._filters[k] @ delta.astype(np.float32))
             energy = float(np.dot(delta * delta, self._inv_var))
             scale = math.sqrt(max(energy - max(z, 0.0) ** 2, 0.0) / dof)
-        return FrameNoise(scale, dof) if scale > ESTIMATE_MARGIN else ASSUMED
+        return estimated(scale, dof)
 
     def far_bias(self) -> float:
         """E[Σ_far (δ/σ)²] / E[n_far] of :meth:`frame_noise`'s far taxels on white noise at the
@@ -263,7 +282,7 @@ class ContactDetector:
                 return ASSUMED
             res = np.where(ok, delta - predicted, 0.0)
             scale = math.sqrt(float(np.dot(res * res, self._inv_var)) / dof)
-        return FrameNoise(scale, dof) if scale > ESTIMATE_MARGIN else ASSUMED
+        return estimated(scale, dof)
 
     def thresholds(self, noise: FrameNoise) -> tuple[float, float]:
         """(bank threshold, refined threshold) on the statistic divided by ``noise.scale``:
