@@ -150,6 +150,11 @@ def _replay(args: argparse.Namespace) -> int:
             parameter_overrides=[
                 rclpy.parameter.Parameter("bundles_dir", value=args.bundles),
                 rclpy.parameter.Parameter("queue_depth", value=min(max(len(raw), 1), 1000)),
+            ]
+            + [
+                rclpy.parameter.Parameter(name, value=False)
+                for name in ("follow_contacts", "fuse_frames")
+                if args.no_follow
             ],
         )
         nodes.append(recon)
@@ -261,6 +266,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     r.add_argument(
         "--topics", nargs="*", default=[], help="topics to replay (default: the TaxelArray ones)"
+    )
+    r.add_argument(
+        "--no-follow",
+        action="store_true",
+        help="solve every frame on its own (follow_contacts and fuse_frames false), as a "
+        "recording made with bringup --no-follow was",
     )
     d = sub.add_parser("demo", help="end-to-end demo with figures and a PNG")
     d.add_argument("rest", nargs=argparse.REMAINDER)
