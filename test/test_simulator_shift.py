@@ -242,8 +242,12 @@ def test_simulator_node_takes_the_hosts_shift_from_the_bus(ros_context) -> None:
 MODS6 = [(0, t) for t in range(6)]  # the hexagon's modules: board 0, triangles 0..5
 
 
-def _drain(bus: can.BusABC) -> list[can.Message]:
+def _drain(bus: can.BusABC, window_s: float = 0.5) -> list[can.Message]:
+    """The frames received within ``window_s`` [s] (a live simulator never falls silent: reading
+    until a gap hung once the node's 20 ms periods came closer together than the gap)."""
     out = []
-    while (m := bus.recv(timeout=0.05)) is not None:
-        out.append(m)
+    end = time.monotonic() + window_s
+    while (left := end - time.monotonic()) > 0:
+        if (m := bus.recv(timeout=min(left, 0.05))) is not None:
+            out.append(m)
     return out
