@@ -248,6 +248,8 @@ def main() -> None:
                 cop = np.where(np.isnan(r["cop"]), np.inf, r["cop"])
                 cells.append(f"{np.median(cop):5.2f} /{np.median(sc):5.3f}")
                 say(f"{name:16s} {tier:6s} {kind:10s} | " + " | ".join(cells))
+    say()
+    tails = tail_by_place(say, names, presses, per_press)
     if have_cal:
         say()
         say("issue 16 targets, calibrated bundle, worst truth:")
@@ -281,8 +283,56 @@ def main() -> None:
                 {"truth": k[0], "tier": k[1], "bundle": k[2], **v} for k, v in results.items()
             ],
             "worst": [{"tier": k[0], "bundle": k[1], **v} for k, v in worst.items()],
+            "tail_by_place": tails,
         }
         (args.out / f"{stem}.json").write_text(json.dumps(blob, indent=1, default=float))
+
+
+def tail_by_place(
+    say, names: tuple[str, ...], presses: dict[str, dict], per_press: dict[tuple, dict]
+) -> list[dict]:
+    """The tail beside the median, per kind of place (issue 26): |force error| [%] of the
+    presses of 1 N and more (a miss counts 100 %): median, p90, p99, and the worst press named
+    (indenter, force, signed error); CoP error [mm] median and worst. Returns the rows."""
+    from benchkit.protocol import PLACES
+
+    say("tail per kind of place, presses >= 1 N: |force error| % median / p90 / p99, worst press;")
+    say("CoP mm median / worst (a miss: 100 % and no CoP)")
+    rows = []
+    for key, r in per_press.items():
+        name, tier, kind = key
+        p = presses[name]
+        for place in PLACES:
+            m = (p["place"] == place) & (p["f"] >= 1.0)
+            if not m.any():
+                continue
+            e = r["err"][m]
+            a = np.where(np.isnan(e), 100.0, np.abs(e))
+            i = int(np.argmax(a))
+            cop = r["cop"][m]
+            worst_press = f"{p['ind'][m][i]} {p['f'][m][i]:g} N " + (
+                "missed" if np.isnan(e[i]) else f"{e[i]:+.1f} %"
+            )
+            row = {
+                "truth": name,
+                "tier": tier,
+                "bundle": kind,
+                "place": place,
+                "median": float(np.median(a)),
+                "p90": float(np.percentile(a, 90)),
+                "p99": float(np.percentile(a, 99)),
+                "worst": float(a[i]),
+                "worst_press": worst_press,
+                "cop_median": float(np.nanmedian(cop)) if np.isfinite(cop).any() else np.nan,
+                "cop_worst": float(np.nanmax(cop)) if np.isfinite(cop).any() else np.nan,
+            }
+            rows.append(row)
+            say(
+                f"{name:16s} {tier:6s} {kind:10s} {place:13s} | {row['median']:5.1f} / "
+                f"{row['p90']:5.1f} / {row['p99']:5.1f} | worst {row['worst']:5.1f} "
+                f"({worst_press}) | CoP {row['cop_median']:4.2f} / {row['cop_worst']:4.2f}"
+            )
+    return rows
 
 
 def detail(say, r: dict[str, np.ndarray], p: dict[str, np.ndarray]) -> None:
