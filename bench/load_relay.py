@@ -21,14 +21,11 @@ import benchkit  # noqa: F401  (the package from this tree)
 
 def main(patches: list[str]) -> None:
     import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-    from rclpy.executors import ExternalShutdownException
-    from rclpy.experimental import EventsExecutor
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     from tactile_contact.msg import ContactState, TaxelArray
-    from tactile_contact.ros.common import seconds_from_stamp, spin_until_shutdown
+    from tactile_contact.ros.common import seconds_from_stamp
     from tactile_contact.ros.contact_reconstruction import OUTPUT_QOS, QUIET_EVENTS
     from tactile_contact.ros.topics import patch_topic
 
@@ -56,7 +53,22 @@ def main(patches: list[str]) -> None:
         node.create_subscription(
             TaxelArray, patch_topic(name, "taxels"), relay(name, pub), input_qos
         )
+    serve(node, frames)
+
+
+def serve(node: Any, frames: dict[str, int]) -> None:
+    """Report each patch's frame count on /diagnostics every second (as the reconstruction
+    does, so the bench reads both alike) and spin ``node`` until shutdown, then clean up.
+    Shared with load_relay_batches.py."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.experimental import EventsExecutor
+
+    from tactile_contact.ros.common import spin_until_shutdown
+
     diag = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+    clock = node.get_clock()
 
     def report() -> None:
         msg = DiagnosticArray()

@@ -18,19 +18,16 @@ import sys
 import time
 
 import benchkit  # noqa: F401  (the package from this tree)
+from load_relay import serve
 
 
 def main(patches: list[str]) -> None:
     import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-    from rclpy.executors import ExternalShutdownException
-    from rclpy.experimental import EventsExecutor
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     from tactile_contact.msg import ContactArray, TaxelBatch
     from tactile_contact.ros.cdr import ContactRows, read_taxel_batch, write_contact_array
-    from tactile_contact.ros.common import spin_until_shutdown
     from tactile_contact.ros.contact_batches import BATCH_DEPTH, BATCHES_TOPIC, CONTACTS_TOPIC
     from tactile_contact.ros.patch_pipeline import OUTPUT_QOS, QUIET_EVENTS
     from tactile_contact.ros.worker_link import WorkerLink
@@ -67,31 +64,7 @@ def main(patches: list[str]) -> None:
 
     qos = QoSProfile(depth=BATCH_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
     node.create_subscription(TaxelBatch, BATCHES_TOPIC, on_batch, qos, raw=True)
-    diag = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
-
-    def report() -> None:
-        msg = DiagnosticArray()
-        msg.header.stamp = node.get_clock().now().to_msg()
-        msg.status = [
-            DiagnosticStatus(
-                name=f"contact_reconstruction: {name}",
-                values=[KeyValue(key="frames", value=str(n))],
-            )
-            for name, n in frames.items()
-        ]
-        diag.publish(msg)
-
-    node.create_timer(1.0, report)
-    executor = EventsExecutor()
-    executor.add_node(node)
-    try:
-        spin_until_shutdown(executor)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        executor.shutdown(timeout_sec=1.0)
-        node.destroy_node()
-        rclpy.try_shutdown()
+    serve(node, frames)
 
 
 if __name__ == "__main__":
