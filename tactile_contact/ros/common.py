@@ -247,6 +247,18 @@ def publish_while_up(node: Node, publisher: Any, msg: Any) -> bool:
     return True
 
 
+def _interrupt_once(signum: int, frame: Any) -> None:
+    """SIGINT: a KeyboardInterrupt the first time, ignored from then on. Why: a Ctrl-C in a
+    terminal reaches every process of the group and ros2 launch forwards its own, so a node
+    gets two, often milliseconds apart; the second, raised while the first was being handled
+    (before the cleanup could ignore it), escaped run_node and killed the process by SIGINT
+    (ros2 launch: "process has died … exit code -2", seen in CI)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if not getattr(_interrupt_once, "seen", False):
+        _interrupt_once.seen = True  # type: ignore[attr-defined]
+        raise KeyboardInterrupt
+
+
 def run_node(
     name: str, factory: Callable[[], Node], args: list[str] | None = None, *, events: bool = False
 ) -> None:
@@ -265,6 +277,8 @@ def run_node(
     node = None
     executor = None
     initialized = False
+    # Before rclpy.init, so that rclpy's own handler (which shuts the context down) chains to it.
+    signal.signal(signal.SIGINT, _interrupt_once)
     try:
         try:
             rclpy.init(args=args)
