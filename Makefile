@@ -10,13 +10,14 @@ STAMP := $(VENV)/.stamps
 SITE := $(VENV)/lib/python3.*/site-packages
 ROS_TEST_ENV := ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-$$((20 + $$$$ % 70))}
 
-.PHONY: all setup ros-launch demo test lint format bench bench-quick bench-robust bundles test-data clean distclean help
+.PHONY: all setup ros-launch demo test lint format bench bench-quick bench-robust bundles robot-bundles test-data clean distclean help
 all: setup
 
 help:
 	@echo "make demo    set up, then run simulator -> driver -> reconstruction and write out/demo.png"
 	@echo "make test    set up, then lint and run every test"
 	@echo "make bench   run the run-time vs error benchmark (bench-quick: < 2 min)"
+	@echo "make robot-bundles  build the whole robot's bundles (config/icub_robot.yaml) into out/robot/bundles"
 
 $(STAMP)/venv:
 	$(PY_BOOT) -m venv $(VENV)
@@ -116,6 +117,11 @@ test: setup ros-launch
 
 bundles: setup
 	$(PY) -m tactile_contact.offline.build config/hexagon_patch.yaml -o bundles
+
+# The whole robot's 34 bundles (config/icub_robot.yaml; ≈ 30 min of CPU, an up-to-date bundle is
+# skipped): what bench/bench_workers.py and the README's whole-robot launch lines use.
+robot-bundles: setup
+	$(PY) -m tactile_contact.offline.build config/icub_robot.yaml -o out/robot/bundles --jobs 2
 
 demo: setup bundles
 	$(ROS_TEST_ENV) $(PY) -m tactile_contact.ros.demo --bundles bundles --out out
