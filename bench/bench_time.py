@@ -36,6 +36,7 @@ calibrated bundle; lag = how far the reported CoP trails the truth along the pat
 from __future__ import annotations
 
 import argparse
+import copy
 import math
 import subprocess
 import sys
@@ -138,6 +139,23 @@ def one_frame_bound(lay: Patch, p: dict) -> np.ndarray:
         slope = (lay.to_delta_c(d + eps) - lay.to_delta_c(d - eps)) / (2 * eps)
         out.append(crb(slope[:, None] * jac, sigma, float(f))[0])
     return np.array(out)
+
+
+def information(recon: Reconstructor, lay: Patch, p: dict, i: int) -> str:
+    """What press ``i`` gives a detector, noise-free: its largest reading [counts] and the
+    matched-filter statistic z₁ [σ] of one frame (the bank's best filter on its noiseless
+    readings at this noise); a mean of n frames reaches z₁·√n, so the frames it needs before
+    z clears the detection threshold (the information limit, whatever the fusion does)."""
+    det = copy.deepcopy(recon.detector)  # the caller's keeps its noise
+    det.set_noise(np.full(recon.n_taxels, frame_noise(lay)))
+    z1 = det.statistic(p["d"][i])[0]
+    top = float(np.abs(lay.to_delta_c(p["d"][i])).max() / lay.lsb)
+    need = math.ceil((det.threshold / z1) ** 2) if z1 > 0 else math.inf
+    return (
+        f"{p['ind'][i]}, {p['place'][i]}, {p['f'][i]:g} N: largest reading {top:.2f} counts, "
+        f"z of one noiseless frame {z1:.2f} σ → {need} frames to reach the threshold "
+        f"{det.threshold:.2f}"
+    )
 
 
 def rows(r: dict, p: dict, bound: np.ndarray) -> list[list[str]]:
@@ -284,6 +302,8 @@ def main() -> None:
                 if kind == "calibrated" and mode == "fused" and 10 in r["at"]:
                     j = r["at"].index(10)
                     e, f = r["err"][:, j], p["f"]
+                    for i in np.flatnonzero(np.isnan(e) & (f >= 0.5)):
+                        say(f"  missed after 10 frames: {information(recon, lay, p, int(i))}")
                     a = np.where(np.isnan(e), 100.0, np.abs(e))
                     half = np.isclose(f, 0.5)
                     targets.append(
