@@ -31,6 +31,7 @@ import functools
 import math
 from typing import NamedTuple
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import ndtri
@@ -181,6 +182,11 @@ class ContactDetector:
         self.refined_share_threshold = float(beta.isf(2.0 * p_frame / n_ref, 0.5, (n_k - 1) / 2.0))
         self.sigma = np.zeros(r.shape[1])
         self._built: NDArray[np.float64] | None = None  # the noise the filters are for [m]
+        #: (K,) or scalar: a noise whose ratios to the one the filters were built for stay
+        #: within this share of their median c keeps the filters (statistics × 1/c; e.g. a
+        #: NoiseTracker's ``tolerance``, its own estimates' wander). 0: only an exact uniform
+        #: multiple (to UNIFORM).
+        self.tolerance: ArrayLike = 0.0
         self._z_scale = 1.0  # the statistics' factor for the noise in use (set_noise)
         #: Times the filters were built (set_noise: not for a uniform multiple of the noise).
         self.rebuilds = 0
@@ -189,12 +195,14 @@ class ContactDetector:
     def set_noise(self, sigma: ArrayLike) -> None:
         """Use the per-taxel noise ``sigma`` [m] (scalar or (K,), finite, > 0).
 
-        A ``sigma`` that is a uniform multiple c of the noise the filters were built for
-        keeps the filters: each statistic z is that of the built filters times 1/c (the
-        matched filter of noise c·σ is the one of σ over c). Why: the build costs 0.5–28 ms
-        on the robot's banks (1 655–12 270 filters), and the node's noise tracker hands a new
-        level every 50 frames, mostly a common scale (:class:`NoiseTracker`). The same
-        ``sigma`` as built gives the built filters' statistics bit for bit."""
+        A ``sigma`` that is a uniform multiple c of the noise σ_b the filters were built for,
+        each taxel within ``tolerance`` of it, keeps the filters: the bank's statistics z are
+        those of noise c·σ_b, the built filters' times 1/c (the matched filter of c·σ_b is
+        σ_b's over c); the energy (share test) and the refined test use ``sigma`` itself. Why:
+        the build costs 0.5–28 ms on the robot's banks (1 655–12 270 filters), and the node's
+        noise tracker hands a new level every 50 frames, which moves as a whole while each
+        taxel's estimate wanders within its spread (:class:`NoiseTracker`). The same ``sigma``
+        as built gives the built filters' statistics bit for bit."""
         s = np.broadcast_to(np.asarray(sigma, dtype=np.float64), self.sigma.shape).copy()
         if not np.all(np.isfinite(s) & (s > 0)):
             raise ValueError("noise sigma must be finite and > 0 m for every taxel")
@@ -204,7 +212,7 @@ class ContactDetector:
         if built is not None:
             ratio = s / built
             c = float(np.median(ratio))
-            if np.all(np.abs(ratio - c) <= UNIFORM * c):
+            if np.all(np.abs(ratio - c) <= np.maximum(self.tolerance, UNIFORM) * c):
                 # (argmax over the bank, hence far_bias's selection, is the same at any scale)
                 self._z_scale = 1.0 if c == 1.0 else 1.0 / c
                 return
@@ -397,20 +405,16 @@ class NoiseTracker:
     that the skin is noisy. ``sigma`` changes only every ``every`` frames, as one new array, so
     a detector can tell by identity that nothing changed.
 
-    What it hands out is a common scale times a per-taxel shape: c·σ₀, with σ₀ the learnt
-    noise when the shape was last taken and c the median ratio of the learnt noise to it
-    now. The shape is taken afresh when some taxel's learnt σ differs from c·σ₀ by more than
-    SHAPE_SPREAD standard errors of the difference of two estimates (the shape's and now's,
-    √2 of one's) or c·σ₀ would fall below the floor. One estimate's error, of an
-    exponential mean over ``frames`` (α = 1/frames), is √(α/(2−α)·Var δ²)/(2σ²) of σ, Var δ²
-    from a mean of δ⁴ tracked alike: 2.2 % at 500 frames for Gaussian noise, about twice
-    that for 8-bit readings that mostly read 0 (measured on 30 000 frames of a 240-taxel
-    patch, 0.6-count noise: at 4 Gaussian errors of one estimate a new shape every ≈ 700
-    frames, at 5 of its own one every ≈ 2 000, at 5 of the difference's none, the
-    settling from the sensor model's level included). Why: a detector keeps its
-    filters for a uniform multiple of their noise (ContactDetector.set_noise) and rebuilds
-    them, 0.5–28 ms on the robot's patches, otherwise; a skin warming up or settling moves
-    all its taxels' noise together, and a taxel's estimate alone wanders by its spread.
+    With it, ``tolerance``: how far each taxel's estimate wanders on its own, as a share of
+    it: SHAPE_SPREAD standard errors of the difference of two estimates (√2 of one's). One
+    estimate's error, of an exponential mean over ``frames`` (α = 1/frames), is
+    √(α/(2−α)·Var δ²)/(2σ²) of σ, Var δ² from a mean of δ⁴ tracked alike: 2.2 % at 500
+    frames for Gaussian noise, about twice that for 8-bit readings that mostly read 0. A
+    detector given it (``ContactDetector.tolerance``) keeps its filters while the noise
+    handed out stays within it of a uniform multiple of the noise they were built for
+    (measured on 30 000 frames of a 240-taxel patch, 0.6-count noise: at 4 Gaussian errors of
+    one estimate a rebuild every ≈ 700 frames, at 5 of its own one every ≈ 2 000, at 5 of
+    the difference's none, the settling from the sensor model's level included).
 
     Args:
         floor: (K,) or scalar lowest noise [m].
@@ -442,56 +446,60 @@ class NoiseTracker:
         self._count = 0
         self.frames_used = 0
         self.sigma = np.sqrt(self._var)
-        self._shape = self.sigma
-        #: Times a new shape was taken (each costs a detector its filters' rebuild).
-        self.shapes = 0
+        self.tolerance = self._tolerance()
+        # The compiled step built (or loaded from numba's cache) now, not in a first frame.
+        _learn(
+            np.zeros(f.shape),
+            np.zeros(f.shape, dtype=bool),
+            self.sigma,
+            self._var,
+            self._m4,
+            0.0,
+            1.0,
+        )
 
-    @property
-    def learnt(self) -> NDArray[np.float64]:
-        """Each taxel's learnt noise [m] now (floored), as opposed to ``sigma`` handed out."""
-        return np.maximum(np.sqrt(self._var), self.floor)
+    def _tolerance(self) -> NDArray[np.float64]:
+        """(K,) the relative wander of each taxel's σ (class docstring), at least a Gaussian's."""
+        a = self._alpha / (2.0 - self._alpha)
+        var = np.maximum(self._var, np.square(self.floor))
+        spread = np.sqrt(a * np.maximum(self._m4 - np.square(self._var), 2.0 * np.square(var)))
+        return self.SHAPE_SPREAD * math.sqrt(2.0) * spread / (2.0 * var)
 
     def update(self, delta: ArrayLike, valid: ArrayLike, in_contact: bool) -> None:
         """Learn from one frame's compressions ``delta`` [m] (invalid taxels ignored)."""
         if in_contact:
             return
         d = np.asarray(delta, dtype=np.float64)
-        ok = np.asarray(valid, dtype=bool) & np.isfinite(d)
-        if ok.all():  # (the usual frame: no index arrays, a third of the cost)
-            if np.any(np.abs(d) > self.SPIKE_SIGMA * self.sigma):
-                return
-            d2 = np.square(d)
-            self._var += self._alpha * (d2 - self._var)
-            self._m4 += self._alpha * (d2 * d2 - self._m4)
-        else:
-            if np.any(np.abs(d[ok]) > self.SPIKE_SIGMA * self.sigma[ok]):
-                return
-            d2 = np.square(d[ok])
-            self._var[ok] += self._alpha * (d2 - self._var[ok])
-            self._m4[ok] += self._alpha * (d2 * d2 - self._m4[ok])
+        ok = np.asarray(valid, dtype=bool)
+        if d.shape != self._var.shape or ok.shape != d.shape:
+            raise ValueError(
+                f"delta and valid must have shape {self._var.shape}, got {d.shape}, {ok.shape}"
+            )
+        # (one compiled pass: numpy's dozen calls cost ≈ 15–35 µs an idle patch-frame)
+        if not _learn(d, ok, self.sigma, self._var, self._m4, self._alpha, self.SPIKE_SIGMA):
+            return
         self.frames_used += 1
         self._count += 1
         if self._count >= self._every:
             self._count = 0
-            self._hand_out(self.learnt)
+            self.sigma = np.maximum(np.sqrt(self._var), self.floor)
+            self.tolerance = self._tolerance()
 
-    @property
-    def tolerance(self) -> NDArray[np.float64]:
-        """(K,) relative deviation of each taxel's learnt σ from the one handed out that takes
-        a new shape: SHAPE_SPREAD of its standard error (class docstring), at least a
-        Gaussian's."""
-        a = self._alpha / (2.0 - self._alpha)
-        var = np.maximum(self._var, np.square(self.floor))
-        spread = np.sqrt(a * np.maximum(self._m4 - np.square(self._var), 2.0 * np.square(var)))
-        return self.SHAPE_SPREAD * math.sqrt(2.0) * spread / (2.0 * var)
 
-    def _hand_out(self, learnt: NDArray[np.float64]) -> None:
-        """``sigma`` := c·shape, or a new shape (class docstring)."""
-        ratio = learnt / self._shape
-        c = float(np.median(ratio))
-        handed = c * self._shape
-        off = np.abs(ratio / c - 1.0)
-        if np.any(off > self.tolerance) or np.any(handed < self.floor * (1.0 - UNIFORM)):
-            self._shape = handed = learnt
-            self.shapes += 1
-        self.sigma = handed
+@numba.njit(cache=True, nogil=True)
+def _learn(d, ok, sigma, var, m4, alpha, spike):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """NoiseTracker.update's step: False (nothing learnt) if a used reading (``ok`` and finite)
+    exceeds ``spike``·σ; else, at the used taxels, var += α(δ² − var) and m4 += α(δ⁴ − m4)
+    (the same floating-point operations, in the same order, as numpy's)."""
+    n = d.shape[0]
+    for i in range(n):
+        x = d[i]
+        if ok[i] and math.isfinite(x) and abs(x) > spike * sigma[i]:
+            return False
+    for i in range(n):
+        x = d[i]
+        if ok[i] and math.isfinite(x):
+            x2 = x * x
+            var[i] += alpha * (x2 - var[i])
+            m4[i] += alpha * (x2 * x2 - m4[i])
+    return True

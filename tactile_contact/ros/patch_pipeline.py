@@ -319,6 +319,10 @@ class PatchPipeline:
         want_traction = sub[self.pub_traction] > 0 or sub[self.pub_cloud] > 0
         t1 = time.perf_counter()
         readings = np.where(valid, delta_c, 0.0)
+        if self.recon.detector is not None:
+            # The detector keeps its filters while the learnt noise moves within the tracker's
+            # own spread of a uniform multiple of theirs (a rebuild: 0.5–28 ms a patch).
+            self.recon.detector.tolerance = self.noise.tolerance
         result = self.recon.solve(
             readings,
             valid=valid,
@@ -327,7 +331,9 @@ class PatchPipeline:
             noise=self.noise.sigma,
         )
         if not result.in_contact:
-            self.noise.update(self.recon.compression(readings), valid, result.in_contact)
+            # δ of the taxels used, as the solve converted them (one compiled pass; δ as
+            # Reconstructor.compression gives it, bit for bit).
+            self.noise.update(*self.recon.readings.from_delta_c(readings, valid), False)
         t2 = time.perf_counter()
         out_of_range = int(valid.sum()) - result.taxels_used
         if out_of_range:
