@@ -188,10 +188,12 @@ def run_phase(
     seconds: float,
     warmup: float = 5.0,
     profile_s: float = 0.0,
+    tree: Path | None = None,
 ) -> dict:
     """One measured run: the source, ``workers`` workers (or the relay when ``consumers`` is
     "relay"), a probe; patch-frames offered and summarised, CPU, latency, memory, and with
-    ``profile_s`` py-spy on the first consumer after the window."""
+    ``profile_s`` py-spy on the first consumer after the window. ``tree``: the workers run the
+    package found there (an older version unpacked, e.g. ``git archive``) instead of this one."""
     from rclpy.experimental import EventsExecutor
     from rclpy.node import Node
 
@@ -202,6 +204,7 @@ def run_phase(
     from tactile_contact.ros.worker_link import HEARTBEAT_QOS, TOPIC
 
     env = dict(os.environ, PYTHONUNBUFFERED="1")
+    worker_env = env if tree is None else dict(env, PYTHONPATH=str(tree))
     names = [p.name for p in load_layout(layout).patches]
     procs = []
     if consumers == "relay":
@@ -224,7 +227,7 @@ def run_phase(
                     [sys.executable, *args],
                     stdout=subprocess.DEVNULL,
                     stderr=subprocess.DEVNULL,
-                    env=env,
+                    env=worker_env,
                 )
             )
     source = subprocess.Popen(
@@ -384,6 +387,13 @@ def main() -> int:
     ap.add_argument("--group", type=int, default=3, help="patches per batch (24-patch skin)")
     ap.add_argument("--profile", type=float, default=0.0, help="py-spy a worker S s a phase")
     ap.add_argument("--out", type=Path, help="also write workers.md and workers.json here")
+    ap.add_argument(
+        "--before",
+        type=Path,
+        help="also run each 1-worker phase (kinds, robot) with the package in this folder "
+        "(e.g. `git archive <commit> tactile_contact | tar -x -C DIR`), just before this "
+        "tree's: before and after in the same run",
+    )
     ap.add_argument("--source-child", nargs=4, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.source_child:
@@ -408,8 +418,8 @@ def main() -> int:
         print(text, flush=True)
         lines.append(text)
 
-    def phase(key: str, *a: object) -> dict:
-        r = run_phase(*a, args.warmup, args.profile)  # type: ignore[arg-type]
+    def phase(key: str, *a: object, tree: Path | None = None) -> dict:
+        r = run_phase(*a, args.warmup, args.profile, tree)  # type: ignore[arg-type]
         results[key] = r
         say(
             f"{key}: {r['offered_per_s']:.0f} patch-frames/s offered, {r['frames_per_s']:.0f} "
@@ -432,6 +442,9 @@ def main() -> int:
         relay = phase("relay, 24 patches", layout24, bundles24, "sliding", "relay", 1, rate, g, n)
     if "kinds" in args.phases:
         for scene in ("idle", "held", "sliding"):
+            if args.before:
+                a = (layout24, bundles24, scene, "workers", 1, rate, g, n)
+                phase(f"{scene}, 1 worker, before", *a, tree=args.before)
             r = phase(f"{scene}, 1 worker", layout24, bundles24, scene, "workers", 1, rate, g, n)
             say(
                 f"   {scene}: {r['cpu_per_frame_us']:.0f} µs a patch-frame all-in, "
@@ -456,6 +469,9 @@ def main() -> int:
         build_layout(ROBOT, ROBOT_BUNDLES, jobs=2)
         say("-- the whole robot (34 patches, 3928 taxels, 7 buses), one batch a bus --")
         phase("relay, robot", ROBOT, ROBOT_BUNDLES, "typical", "relay", 1, rate, 0, n)
+        if args.before:
+            a = (ROBOT, ROBOT_BUNDLES, "typical", "workers", 1, rate, 0, n)
+            phase("(b) typical, 1 worker, before", *a, tree=args.before)
         for w in (1, 2):
             phase(
                 f"(b) typical, {w} worker(s)",
