@@ -249,7 +249,7 @@ def main() -> None:
                 cells.append(f"{np.median(cop):5.2f} /{np.median(sc):5.3f}")
                 say(f"{name:16s} {tier:6s} {kind:10s} | " + " | ".join(cells))
     say()
-    tails = tail_by_place(say, names, presses, per_press)
+    tails = tail_by_place(say, names, presses, per_press, crbs)
     if have_cal:
         say()
         say("issue 16 targets, calibrated bundle, worst truth:")
@@ -288,16 +288,32 @@ def main() -> None:
         (args.out / f"{stem}.json").write_text(json.dumps(blob, indent=1, default=float))
 
 
+def efficient_p90(sf: np.ndarray, draws: int = 2000) -> float:
+    """The p90 of |force error| [%] an efficient unbiased estimator reaches on presses whose
+    Cramér–Rao bounds σ_F/F are ``sf`` [%]: median over ``draws`` seeded draws of
+    |N(0, σ_F/F)| per press (the bound is local: it holds where the valley is one basin)."""
+    rng = np.random.default_rng(26)
+    sim = np.abs(rng.normal(size=(draws, len(sf)))) * np.asarray(sf)
+    return float(np.median(np.percentile(sim, 90, axis=1)))
+
+
 def tail_by_place(
-    say, names: tuple[str, ...], presses: dict[str, dict], per_press: dict[tuple, dict]
+    say,
+    names: tuple[str, ...],
+    presses: dict[str, dict],
+    per_press: dict[tuple, dict],
+    crbs: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]],
 ) -> list[dict]:
     """The tail beside the median, per kind of place (issue 26): |force error| [%] of the
     presses of 1 N and more (a miss counts 100 %): median, p90, p99, and the worst press named
-    (indenter, force, signed error); CoP error [mm] median and worst. Returns the rows."""
+    (indenter, force, signed error); CoP error [mm] median and worst; beside them the median
+    Cramér–Rao bound σ_F/F [%] of those presses (``crbs``: per truth and tier) and the p90 an
+    efficient estimator would reach on them (:func:`efficient_p90`). Returns the rows."""
     from benchkit.protocol import PLACES
 
     say("tail per kind of place, presses >= 1 N: |force error| % median / p90 / p99, worst press;")
-    say("CoP mm median / worst (a miss: 100 % and no CoP)")
+    say("CoP mm median / worst (a miss: 100 % and no CoP); CRB: median Cramér–Rao σ_F/F % of")
+    say("those presses / the p90 an efficient estimator reaches on them (|N(0, σ_F)| per press)")
     rows = []
     for key, r in per_press.items():
         name, tier, kind = key
@@ -325,13 +341,25 @@ def tail_by_place(
                 "worst_press": worst_press,
                 "cop_median": float(np.nanmedian(cop)) if np.isfinite(cop).any() else np.nan,
                 "cop_worst": float(np.nanmax(cop)) if np.isfinite(cop).any() else np.nan,
+                "crb_median": float(np.median(crbs[(name, tier)][0][m])),
+                "efficient_p90": efficient_p90(crbs[(name, tier)][0][m]),
             }
             rows.append(row)
             say(
                 f"{name:16s} {tier:6s} {kind:10s} {place:13s} | {row['median']:5.1f} / "
                 f"{row['p90']:5.1f} / {row['p99']:5.1f} | worst {row['worst']:5.1f} "
-                f"({worst_press}) | CoP {row['cop_median']:4.2f} / {row['cop_worst']:4.2f}"
+                f"({worst_press}) | CoP {row['cop_median']:4.2f} / {row['cop_worst']:4.2f} | "
+                f"CRB {row['crb_median']:4.1f} / {row['efficient_p90']:4.1f}"
             )
+    say()
+    say("p90 over all presses (the 'p90' column) beside the p90 an efficient estimator reaches:")
+    for (name, tier, kind), r in per_press.items():
+        a = np.where(np.isnan(r["err"]), 100.0, np.abs(r["err"]))
+        eff = efficient_p90(crbs[(name, tier)][0])
+        say(
+            f"{name:16s} {tier:6s} {kind:10s} | p90 {np.percentile(a, 90):6.1f} | "
+            f"efficient {eff:6.1f}"
+        )
     return rows
 
 
