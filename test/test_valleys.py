@@ -103,3 +103,25 @@ def test_a_press_where_the_grid_has_no_cells_is_reported(recon, truth, indenter)
     middle = recon.taxel_xy.mean(axis=0)
     err, off = _check(recon, truth, indenter, 1.5, middle)
     assert abs(err) < 0.05 and off < 0.5e-3
+
+
+@pytest.mark.parametrize("indenter", [HertzSphere(3e-3), FlatPunch(1.5e-3)])
+def test_float_readings_noisier_than_the_sensor_model_keep_their_round_contact(
+    recon, truth, indenter
+):
+    """Float readings with 1 % of a 3 N press's peak as noise (6.6–10 µm, above the sensor
+    model's 4.3 µm), no noise level passed: the fit measures that noise from the far taxels, so
+    its χ² test passes and noise makes no second contact. Before (0817359) most of these frames
+    failed the test and took the grid path (one: +43 %, 7 mm off; its fit was −7 %), and one
+    fitted a second contact of noise 19 mm away."""
+    xy = recon.taxel_xy
+    for centre in (xy[12 * 4 + 3], xy[12 * 2 + 3]):  # over a taxel (the robust bench's places)
+        clean = truth.compression(indenter, 3.0, centre)
+        for seed in range(5):
+            rng = np.random.default_rng(seed)
+            d = clean + rng.normal(size=clean.shape) * 0.01 * np.abs(clean).max()
+            res = recon.solve_deflection(d)
+            assert res.solver == "round" and len(res.contacts) == 1, (seed, res.solver)
+            # (Not the force: over a taxel the noise alone puts it 10-50 % off now and then,
+            # docs/reconstruction.md "The tail over a taxel".)
+            assert np.hypot(*(np.asarray(res.cop) - centre)) < 3e-3
