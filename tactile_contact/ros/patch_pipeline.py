@@ -526,7 +526,8 @@ class PatchPipeline:
 
     def _fusion_counts(self) -> dict[str, object]:
         """The held scene's frames (fuse_frames): solved on their own (a change), fused (the
-        mean of the held frames solved), republished without a solve."""
+        mean of the held frames solved), republished without a solve; and the idle windows
+        the clock would have solved that the bank test found nothing in."""
         fusion = self.recon.fusion
         if fusion is None:
             return {}
@@ -536,6 +537,7 @@ class PatchPipeline:
             "frames_fused": c.fused,
             "frames_republished": c.held,
             "frames_in_result": fusion.result_frames,
+            "idle_windows_screened": c.screened,
         }
 
     def diagnostics(self) -> Any:
