@@ -503,3 +503,26 @@ def render(centres, cell, sub, x, y, a, force, punch, out):  # pragma: no cover 
     scale = force / total if total > 0.0 else 0.0
     for m in range(n):
         out[near[m]] += vals[m] * scale
+
+
+@numba.njit(**_JIT)
+def round_jacobian(table, t0, dt, step, xy, contacts, h_xy, h_t):  # pragma: no cover
+    """(K, 4·C) derivatives [m per unit] of the readings at ``xy`` (K, 2) [m] of round
+    contacts ``contacts`` (C, 5): force [N], centre x, y [m], log radius, family; in each
+    one's log force, x, y and log radius (forward differences of steps ``h_xy`` [m], ``h_t``
+    through :func:`predict`)."""
+    k = xy.shape[0]
+    out = np.empty((k, 4 * contacts.shape[0]))
+    for c in range(contacts.shape[0]):
+        force, x, y, t = contacts[c, 0], contacts[c, 1], contacts[c, 2], contacts[c, 3]
+        f = int(contacts[c, 4])
+        base = predict(table, f, t0, dt, step, xy, x, y, t, force)
+        px = predict(table, f, t0, dt, step, xy, x + h_xy, y, t, force)
+        py = predict(table, f, t0, dt, step, xy, x, y + h_xy, t, force)
+        pt = predict(table, f, t0, dt, step, xy, x, y, t + h_t, force)
+        for i in range(k):
+            out[i, 4 * c] = base[i]
+            out[i, 4 * c + 1] = (px[i] - base[i]) / h_xy
+            out[i, 4 * c + 2] = (py[i] - base[i]) / h_xy
+            out[i, 4 * c + 3] = (pt[i] - base[i]) / h_t
+    return out
