@@ -32,15 +32,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import benchkit.onecore  # noqa: F401  (before numpy)
 import numpy as np
-from benchkit import LAYOUT, ROOT
+from benchkit.calibration import calibrated_bundle
 from benchkit.protocol import Patch, default_reconstructor
 from benchkit.readings import quantised, seed
 from benchkit.stats import crb, errors
@@ -80,26 +78,8 @@ def calibrated(lay: Patch, name: str, sigma: float, folder: Path) -> tuple[Path 
     rng = np.random.default_rng(seed("noise-calibration", name, f"{sigma:g}"))
     dc = quantised(lay.to_delta_c(cal["d"]), lay.lsb, sigma, rng)
     tag = f"{SHORT[name]}_{sigma:g}".replace(".", "")
-    npz = folder / f"presses_{tag}.npz"
-    np.savez(
-        npz,
-        deflection=lay.to_deflection(dc),
-        force=cal["f"],
-        position=cal["c"],
-        indenter=cal["ind"],
-    )
-    out = folder / f"calibrated_{tag}"
-    cmd = [sys.executable, "-m", "tactile_contact.offline.calibrate", str(LAYOUT), str(npz)]
-    proc = subprocess.run([*cmd, "-o", str(out)], capture_output=True, text=True, cwd=ROOT)
-    if proc.returncode != 0 and "--accept-uncertain" in proc.stderr + proc.stdout:
-        # Refused as uncertain (its message is kept in the notes): the bundle it would write.
-        cmd.append("--accept-uncertain")
-        proc = subprocess.run([*cmd, "-o", str(out)], capture_output=True, text=True, cwd=ROOT)
-    if proc.returncode != 0:
-        return None, (proc.stderr or proc.stdout).strip().splitlines()[-1]
-    found = sorted(q.parent for q in out.rglob("manifest.json"))
-    lines = [s for s in proc.stdout.splitlines() if s.strip()]
-    return (found[0] if found else None), (lines[-2] if len(lines) > 1 else "")
+    # Refused as uncertain (its message is kept in the notes): the bundle it would write.
+    return calibrated_bundle(lay, cal, dc, folder, tag, retry_uncertain=True)
 
 
 def stats(r: dict[str, np.ndarray], p: dict[str, np.ndarray], bound: np.ndarray) -> dict:

@@ -38,7 +38,6 @@ from __future__ import annotations
 import argparse
 import copy
 import math
-import subprocess
 import sys
 import tempfile
 import time
@@ -47,6 +46,7 @@ from pathlib import Path
 import benchkit.onecore  # noqa: F401  (before numpy)
 import numpy as np
 from benchkit import LAYOUT, ROOT
+from benchkit.calibration import calibrated_bundle
 from benchkit.protocol import Patch
 from benchkit.readings import seed
 from benchkit.stats import crb
@@ -86,22 +86,7 @@ def calibrate(lay: Patch, name: str, folder: Path) -> tuple[Path | None, str]:
     cal = calibration_presses(lay, name, N_CAL)
     rng = np.random.default_rng(seed("time-calibration", name))
     dc = np.array([frames(lay, d, 1, rng)[0] for d in cal["d"]])
-    npz = folder / f"presses_{SHORT[name]}.npz"
-    np.savez(
-        npz,
-        deflection=lay.to_deflection(dc),
-        force=cal["f"],
-        position=cal["c"],
-        indenter=cal["ind"],
-    )
-    out = folder / f"calibrated_{SHORT[name]}"
-    cmd = [sys.executable, "-m", "tactile_contact.offline.calibrate", str(LAYOUT), str(npz)]
-    proc = subprocess.run([*cmd, "-o", str(out)], capture_output=True, text=True, cwd=ROOT)
-    if proc.returncode != 0:
-        return None, (proc.stderr or proc.stdout).strip().splitlines()[-1]
-    found = sorted(q.parent for q in out.rglob("manifest.json"))
-    lines = [s for s in proc.stdout.splitlines() if s.strip()]
-    return (found[0] if found else None), (lines[-2] if len(lines) > 1 else "")
+    return calibrated_bundle(lay, cal, dc, folder, SHORT[name])
 
 
 def held(recon: Reconstructor, lay: Patch, p: dict, hold: int, name: str) -> dict:
