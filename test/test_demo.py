@@ -123,3 +123,15 @@ def test_calibrated_figures_are_the_readmes() -> None:
     assert f"{demo.CALIBRATED_FLOAT_PERCENT} % at ≥ 1 N" in readme
     assert f"8-bit readings: {demo.CALIBRATED_8BIT_PERCENT} % at ≥ 1 N" in readme
     assert f"{demo.UNCALIBRATED_WORST_PERCENT} % worst at ≥ 1 N" in readme
+
+
+def test_a_run_without_summaries_is_reported_not_raised() -> None:
+    """Every bundle refused (seen when a stale numba cache broke them): no summary arrives, and
+    the report says so instead of raising on the median of an empty latency list."""
+    obs = demo.Observed()
+    obs.truth[100.0] = object()  # the simulator ran; the reconstruction published nothing
+    report = demo.match(obs, 0.005)
+    lines = report.summary_lines()
+    assert report.frames_published == 0 and report.frames_simulated == 1
+    assert lines[-1] == "no contact summary arrived: no latency or error to report"
+    assert report.frame_lines() == [report.frame_lines()[0]]

@@ -110,9 +110,15 @@ class DemoReport:
         lines = [
             f"frames: {self.frames_published} summaries for {self.frames_simulated} "
             f"simulated periods ({self.loaded().sum()} with force ≥ 0.1 N)",
-            f"latency CAN receive → summary published [ms]: median {np.median(lat):.2f}, "
-            f"p99 {np.percentile(lat, 99):.2f}, max {lat.max():.2f}",
         ]
+        if not lat.size:
+            # Nothing to take a median of: say so (the node's log above says why) instead of
+            # raising on an empty array after the whole run.
+            return [*lines, "no contact summary arrived: no latency or error to report"]
+        lines.append(
+            f"latency CAN receive → summary published [ms]: median {np.median(lat):.2f}, "
+            f"p99 {np.percentile(lat, 99):.2f}, max {lat.max():.2f}"
+        )
         if fe.size:
             seen = self.seen()[self.loaded()]
             lines += [
@@ -432,10 +438,17 @@ def main(argv: list[str] | None = None) -> int:
     report, seen, patch = run(args.layout, args.bundles, args.duration, args.period_ms)
     for line in [*report.frame_lines(), "", *report.summary_lines()]:
         print(line)
+    if not report.frames_published:
+        print(
+            f"ERROR: no contact summary arrived in {args.duration:g} s of simulation "
+            "(the reconstruction's log above says why); no figure written",
+            file=sys.stderr,
+        )
+        return 1
     png = args.out / "demo.png"
     plot(report, seen, args.layout, patch, png)
     print(f"wrote {png}")
-    return 0 if report.frames_published else 1
+    return 0
 
 
 if __name__ == "__main__":
