@@ -124,6 +124,7 @@ class FusionCounts:
     fused: int = 0
     held: int = 0
     screened: int = 0  # idle windows on the clock the bank test found nothing in (no solve)
+    deferred: int = 0  # re-solves (window or idle look) run by catch_up, after the frame
     changes: dict[str, int] = field(default_factory=dict)
 
 
@@ -136,6 +137,12 @@ class FrameFusion:
         jacobian: the result's parameter directions (:data:`Jacobian`).
         screen: for the idle windows solved on the clock (every ``idle_every`` frames, not
             picked by the scan), whether to solve at all (:data:`Screen`); None: solve.
+        defer: a re-solve that no change asks for (the window's, on its schedule, and an idle
+            patch's look into its window means) is not run inside :meth:`step`, which
+            republishes the last result, but by the next :meth:`catch_up`: a caller serving
+            many patches publishes every patch's frame first and spends the time after
+            (contact_reconstruction). The fusion's state after catch_up is what step would
+            have left; its result reaches the next frame. False (the default): run at once.
         rounding: the rounding error of one 8-bit reading [m] (one count/√12): the least
             frame-to-frame scatter the change tests assume for quantised readings.
         window, resolve_every, idle_every, idle_windows, alpha, reach: as the module
@@ -156,6 +163,7 @@ class FrameFusion:
         idle_windows: tuple[int, ...] = IDLE_WINDOWS,
         alpha: float = ALPHA,
         reach: float = REACH,
+        defer: bool = False,
     ) -> None:
         xy = np.asarray(taxel_xy, dtype=np.float64)
         k = len(xy)
@@ -191,6 +199,10 @@ class FrameFusion:
         self._q = np.zeros((k, 0))
         self._since = 0
         self._context: object = None
+        self.defer = defer
+        # The re-solve step() left to catch_up (defer): ("resolve" or "idle", idle window,
+        # its clock flag, σ, want traction, want deflection), or None.
+        self._pending: tuple | None = None
         self.result: object = None
         #: Frames averaged into ``result`` (1: solved on its own).
         self.result_frames = 0
@@ -225,6 +237,7 @@ class FrameFusion:
         self._state[kern.N] = 0.0
         self._ok = None
         self.result = None
+        self._pending = None
 
     def step(
         self,
@@ -276,16 +289,47 @@ class FrameFusion:
         )
         if res.in_contact or missing:  # type: ignore[attr-defined]
             due = n in RESOLVE_AT if n < self.window else self._since >= self.resolve_every
-            if due or missing:
+            if missing or (due and not self.defer):
                 return self._resolve(sigma, want_traction, want_deflection)
+            if due:
+                self._pending = ("resolve", 0, False, sigma, want_traction, want_deflection)
         else:
-            found = self._idle_check(sigma)
-            if found is not None:
-                self._adopt(found, sigma)
-                return self._resolve(sigma, want_traction, want_deflection)
+            pick = self._idle_pick(sigma)
+            if pick is not None and self.defer:
+                self._pending = ("idle", *pick, sigma, want_traction, want_deflection)
+            elif pick is not None:
+                found = self._idle_solve(*pick, sigma)
+                if found is not None:
+                    self._adopt(found, sigma)
+                    return self._resolve(sigma, want_traction, want_deflection)
         self.counts.held += 1
         self.last = "held"
         return res
+
+    @property
+    def pending(self) -> bool:
+        """Whether a re-solve waits for :meth:`catch_up` (``defer``)."""
+        return self._pending is not None
+
+    def catch_up(self) -> bool:
+        """Run the re-solve the last :meth:`step` deferred (``defer``), as step would have
+        run it; True if there was one. A change since (a frame solved on its own) drops
+        it. The result is the next frame's (``self.result``); ``last`` stays the frame's."""
+        p, self._pending = self._pending, None
+        if p is None or self.result is None:
+            return False
+        kind, w, clock, sigma, want_t, want_d = p
+        last = self.last
+        if kind == "idle":
+            found = self._idle_solve(w, clock, sigma)
+            if found is not None:
+                self._adopt(found, sigma)
+                self._resolve(sigma, want_t, want_d)
+        else:
+            self._resolve(sigma, want_t, want_d)
+        self.counts.deferred += 1
+        self.last = last
+        return True
 
     def compile(self) -> None:
         """Build (or load from numba's disk cache) the compiled steps now, on this patch's
@@ -326,6 +370,12 @@ class FrameFusion:
     def _idle_check(self, sigma: NDArray) -> object | None:
         """An idle patch's look for a press too light for one frame (IDLE_WINDOWS): the
         contact the detector finds on the mean the scan picks, or None."""
+        pick = self._idle_pick(sigma)
+        return None if pick is None else self._idle_solve(*pick, sigma)
+
+    def _idle_pick(self, sigma: NDArray) -> tuple[int, bool] | None:
+        """The idle look's cheap part: the window whose mean deserves a look (its length,
+        and whether the clock picked it rather than the scan), or None."""
         self._since_check += 1
         if self._since_check <= IDLE_HOLDOFF:
             return None
@@ -345,6 +395,11 @@ class FrameFusion:
         if w < 2:
             return None
         self._since_check = 0
+        return int(w), bool(clock)
+
+    def _idle_solve(self, w: int, clock: bool, sigma: NDArray) -> object | None:
+        """The idle look's solve of the mean of the last ``w`` frames: the contact found, or
+        None (on the clock, first screened by the bank test alone)."""
         mean = self._mean(int(w))
         if clock and self._screen is not None:
             # On the clock, nothing in the window stood out locally: only a contact the bank
@@ -381,6 +436,7 @@ class FrameFusion:
         self, delta: NDArray, ok: NDArray, sigma: NDArray, want_t: bool, want_d: bool, why: str
     ) -> object:
         """A change: the frame alone, solved as the reconstructor solves it; a new window."""
+        self._pending = None  # (a change: the deferred re-solve of the old window is moot)
         self._ok = np.array(ok, dtype=bool)
         k = int(self._ok.sum())
         self._limits[0] = _limit(self.alpha, k)

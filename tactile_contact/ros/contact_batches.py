@@ -16,6 +16,7 @@ the queue is skipped once a newer one of it was solved).
 from __future__ import annotations
 
 import math
+import time
 from typing import Any
 
 from rclpy.node import Node
@@ -29,6 +30,13 @@ BATCHES_TOPIC = "taxel_batches"
 CONTACTS_TOPIC = "contacts"
 #: Batches kept while a solve runs: every bus's newest few (one topic carries all buses).
 BATCH_DEPTH = 16
+#: After a message's summaries are published, the re-solves the fusion deferred (a held
+#: window's, an idle patch's look into its window means: 1–12 ms each on the robot's
+#: patches) run until the callback has taken this long [s] (at least one a message; the
+#: rest wait for the next message, oldest first). Why: run inside the frame, one patch's
+#: re-solve held every patch of its bus and every message queued behind it (docs/bench/
+#: tail.md).
+CATCH_UP_BUDGET_S = 2.0e-3
 
 
 def add_row(rows: ContactRows, pipe: Any, stamp_ns: int, result: Any) -> None:
@@ -83,6 +91,8 @@ class ContactBatches:
         self.bad_batches = 0
         self.last_error = ""
         self._newest: dict[str, int] = {}  # patch → stamp [ns] of its newest frame solved
+        # Patches whose fusion deferred a re-solve, oldest first (PatchPipeline.frame).
+        self._deferred: dict[str, Any] = {}
         if batches:
             qos = QoSProfile(depth=BATCH_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
             self.sub = node.create_subscription(
@@ -103,7 +113,24 @@ class ContactBatches:
                 f"taxel batch: {self.last_error}; batch dropped", throttle_duration_sec=5.0
             )
 
+    def defer(self, pipe: Any) -> None:
+        """``pipe``'s fusion has a re-solve waiting: run it by :meth:`catch_up`."""
+        self._deferred.setdefault(pipe.name, pipe)
+
+    def catch_up(self, started: float) -> None:
+        """Run deferred re-solves, oldest first, until the callback that began at
+        ``started`` (time.perf_counter) has spent CATCH_UP_BUDGET_S (at least one)."""
+        pipelines = self.node.pipelines
+        while self._deferred:
+            name = next(iter(self._deferred))
+            pipe = self._deferred.pop(name)
+            if pipelines.get(name) is pipe:
+                pipe.catch_up()
+            if time.perf_counter() - started >= CATCH_UP_BUDGET_S:
+                return
+
     def _on_batch(self, data: bytes) -> None:
+        started = time.perf_counter()
         try:
             view = read_taxel_batch(data)
         except CdrError as exc:
@@ -133,6 +160,7 @@ class ContactBatches:
             add_row(rows, pipe, stamp, result)
         if rows.patches:
             self.publish(rows)
+        self.catch_up(started)
 
     def publish(self, rows: ContactRows) -> None:
         """Publish ``rows`` as one ContactArray, each patch's latency measured now."""

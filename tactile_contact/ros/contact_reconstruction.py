@@ -323,35 +323,45 @@ class ContactReconstructionNode(Node):
         is reported; the copy in memory goes on serving. A bundle refused at start is tried
         again when it changes.
         """
-        log = self.get_logger()
         for pipe in list(self.pipelines.values()):
-            sig = bundle_signature(pipe.bundle)
-            if sig == pipe.signature or sig == self._refused.get(pipe.bundle):
-                continue
-            if not sig:
-                if not pipe.bundle_problem.startswith("bundle deleted"):
-                    pipe.bundle_problem = (
-                        f"bundle deleted on disk ({pipe.bundle}); serving the copy loaded before"
-                    )
-                    log.warning(f"patch {pipe.name}: {pipe.bundle_problem}")
-                continue
-            try:
-                recon = load_reconstructor(pipe.bundle, self.follow_contacts, self.fuse_frames)
-                if recon.patch != pipe.name:
-                    raise ValueError(f"it is now a bundle of patch {recon.patch!r}")
-            except Exception as exc:
-                self._refused[pipe.bundle] = sig
+            self.watch_bundle(pipe)
+        self.retry_refused()
+
+    def watch_bundle(self, pipe: PatchPipeline) -> None:
+        """:meth:`watch_bundles` for one served patch's bundle (≈ 0.1 ms of stat calls; the
+        diagnostics steps take one patch's at a time: all 34 of the robot at once held
+        the frames behind them for ≈ 4.5 ms)."""
+        log = self.get_logger()
+        sig = bundle_signature(pipe.bundle)
+        if sig == pipe.signature or sig == self._refused.get(pipe.bundle):
+            return
+        if not sig:
+            if not pipe.bundle_problem.startswith("bundle deleted"):
                 pipe.bundle_problem = (
-                    f"bundle replaced on disk by one refused ({exc}); serving the copy loaded "
-                    "before"
+                    f"bundle deleted on disk ({pipe.bundle}); serving the copy loaded before"
                 )
-                log.error(f"patch {pipe.name}: {pipe.bundle_problem}")
-                continue
-            pipe.use(recon)
-            pipe.signature, pipe.bundle_problem = sig, ""
-            pipe.reloads += 1
-            self._refused.pop(pipe.bundle, None)
-            log.info(f"patch {pipe.name}: bundle {pipe.bundle} replaced on disk; reloaded")
+                log.warning(f"patch {pipe.name}: {pipe.bundle_problem}")
+            return
+        try:
+            recon = load_reconstructor(pipe.bundle, self.follow_contacts, self.fuse_frames)
+            if recon.patch != pipe.name:
+                raise ValueError(f"it is now a bundle of patch {recon.patch!r}")
+        except Exception as exc:
+            self._refused[pipe.bundle] = sig
+            pipe.bundle_problem = (
+                f"bundle replaced on disk by one refused ({exc}); serving the copy loaded before"
+            )
+            log.error(f"patch {pipe.name}: {pipe.bundle_problem}")
+            return
+        pipe.use(recon)
+        pipe.signature, pipe.bundle_problem = sig, ""
+        pipe.reloads += 1
+        self._refused.pop(pipe.bundle, None)
+        log.info(f"patch {pipe.name}: bundle {pipe.bundle} replaced on disk; reloaded")
+
+    def retry_refused(self) -> None:
+        """The bundles refused at start, tried again when they changed on disk."""
+        log = self.get_logger()
         for name, path in self._paths.items():
             if name not in self.load_errors:
                 continue
@@ -373,21 +383,19 @@ class ContactReconstructionNode(Node):
             log.info(f"patch {recon.patch}: bundle {path} now loads; serving it")
 
     def diagnostics_step(self) -> None:
-        """One step of the diagnostics period: first the bundles watched, then one patch's
-        status taken per step; after the last, the array published."""
+        """One step of the diagnostics period: first the bundles refused tried again, then
+        one patch per step, its bundle watched and its status taken; after the last, the
+        array published."""
         if not self._diag_todo:
-            try:
-                self.watch_bundles()
-            except Exception as exc:  # never into the executor
-                self.get_logger().error(
-                    f"watching bundles: {type(exc).__name__}: {exc}", throttle_duration_sec=5.0
-                )
+            self._watching(self.retry_refused)
             self._diag_todo = [n for n in reversed(self.pipelines) if self._reports(n)]
             if self._diag_todo:
                 return
         else:
             name = self._diag_todo.pop()
-            if name in self.pipelines:
+            pipe = self.pipelines.get(name)
+            if pipe is not None:
+                self._watching(lambda: self.watch_bundle(pipe))
                 self._diag_done[name] = self.pipelines[name].diagnostics()
             if self._diag_todo:
                 return
@@ -398,6 +406,15 @@ class ContactReconstructionNode(Node):
                 if n in self._diag_done and self._reports(n)
             ]
         )
+
+    def _watching(self, watch: Any) -> None:
+        """Run ``watch`` (a look at the bundles on disk); never raises into the executor."""
+        try:
+            watch()
+        except Exception as exc:
+            self.get_logger().error(
+                f"watching bundles: {type(exc).__name__}: {exc}", throttle_duration_sec=5.0
+            )
 
     def _reports(self, patch: str) -> bool:
         """Whether this process reports the patch on /diagnostics: a worker only those it

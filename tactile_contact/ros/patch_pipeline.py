@@ -238,6 +238,9 @@ class PatchPipeline:
     def use(self, recon: Reconstructor) -> None:
         """Serve with ``recon`` from now on (at start, and when the bundle was replaced)."""
         self.recon = recon
+        if recon.fusion is not None:
+            # Its scheduled re-solves wait until the frame's summaries are out (catch_up).
+            recon.fusion.defer = True
         # Where the patch lies on the robot (an imported skin): its rviz2 outputs go there.
         manifest = getattr(getattr(recon, "bundle", None), "manifest", {})
         self.surface = Surface.from_dict(manifest.get("layout", {}).get("surface"))
@@ -308,11 +311,31 @@ class PatchPipeline:
         node = self.node
         if self.name not in node.link.serving:
             return  # left to another worker (or still listening for one)
+        started = time.perf_counter()
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         result = self.frame(stamp, msg.taxel_ids, msg.delta_c, msg.status, contact=True)
         rows = ContactRows()
         add_row(rows, self, stamp, result)
         node.batches.publish(rows)
+        node.batches.catch_up(started)
+
+    def catch_up(self) -> None:
+        """Run the re-solve this patch's fusion deferred (after the frame was published);
+        timed as the stage ``catch_up``. Never raises into the executor."""
+        fusion = self.recon.fusion
+        if fusion is None:
+            return
+        t = time.perf_counter()
+        try:
+            ran = fusion.catch_up()
+        except Exception as exc:
+            if not self.node.context.ok():
+                return
+            self.stats.internal_errors += 1
+            self._fault("internal error", f"{type(exc).__name__}: {exc}; deferred re-solve")
+            return
+        if ran:
+            self.stats.time("catch_up", time.perf_counter() - t)
 
     def frame(self, stamp_ns: int, ids: Any, delta_c: Any, status: Any, contact: bool) -> Any:
         """One frame of this patch: map, solve what is wanted, publish the per-patch outputs
@@ -365,6 +388,9 @@ class PatchPipeline:
             # δ of the taxels used, as the solve converted them (one compiled pass; δ as
             # Reconstructor.compression gives it, bit for bit).
             self.noise.update(*self.recon.readings.from_delta_c(readings, valid), False)
+        fusion = self.recon.fusion
+        if fusion is not None and fusion.pending:
+            self.node.batches.defer(self)  # (run after the frame's summary is published)
         t2 = time.perf_counter()
         out_of_range = int(np.count_nonzero(valid)) - result.taxels_used
         if out_of_range:
@@ -538,6 +564,7 @@ class PatchPipeline:
             "frames_republished": c.held,
             "frames_in_result": fusion.result_frames,
             "idle_windows_screened": c.screened,
+            "resolves_deferred": c.deferred,
         }
 
     def diagnostics(self) -> Any:
