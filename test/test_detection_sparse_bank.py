@@ -1,0 +1,191 @@
+"""The detector's sparse bank (tactile_contact.inverse.detection): its statistics are the dense
+matched-filter product's, on the banks of real patches (the default hexagon and the imported
+iCub forearm V2), before and after the noise changes, and on random sparse banks.
+
+The reference is the dense product written out here in float64: z = (r/σ²)/‖r/σ‖ · δ per
+filter. The bank's weights are float32, so each statistic may differ from it by float32
+rounding of its terms: at most 2⁻²³ Σ|w δ| (the tolerance used)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from tactile_contact.inverse.detection import ContactDetector
+from tactile_contact.inverse.filter_bank import patch_detector
+from tactile_contact.inverse.reconstruction import Reconstructor
+from tactile_contact.inverse.round_contact import (
+    DEFAULT_RADII,
+    FAMILIES,
+    RoundTables,
+    radial_responses,
+)
+from tactile_contact.model.layout import load_layout
+from tactile_contact.offline.build import ROUND_STEP, grids_for
+
+ROOT = Path(__file__).resolve().parents[1]
+EPS32 = 2.0**-23
+
+
+def dense_filters(responses: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """(M, K) float64 matched filters of ``responses`` for noise ``sigma`` (the reference)."""
+    w = responses / sigma**2
+    return w / np.sqrt(np.sum(w * responses, axis=1))[:, None]
+
+
+def mismatch(det: ContactDetector, sigma: np.ndarray, delta: np.ndarray) -> float:
+    """Largest |sparse − dense| over the bank's statistics on ``delta``, in units of the
+    float32 rounding bound of each (≤ 1: equal to float32 rounding)."""
+    f = dense_filters(det._responses, sigma)
+    ref = f @ delta
+    bound = EPS32 * (np.abs(f) @ np.abs(delta)) + 1e-300
+    return float(np.max(np.abs(det.statistics(delta) - ref) / bound))
+
+
+def forearm_detector() -> tuple[ContactDetector, np.ndarray]:
+    """The imported iCub forearm V2's detector (its round tables computed as the bundle build
+    does, its taxels and traction cell from config/icub/left_forearm_V2.yaml), with a
+    non-uniform noise [m]."""
+    patch = load_layout(ROOT / "config" / "icub" / "left_forearm_V2.yaml").patches[0]
+    e, radii = patch.elastomer, np.asarray(DEFAULT_RADII)
+    resp = radial_responses(
+        patch.layer_thickness,
+        e.young,
+        e.poisson,
+        [patch.footprint],
+        [(f, float(a)) for f in range(len(FAMILIES)) for a in radii],
+        model=patch.model.kind,
+        psi=patch.model.psi,
+    )
+    table = patch.model.gain * resp[:, 0].reshape((len(FAMILIES), len(radii), -1))
+    tables = RoundTables(radii, ROUND_STEP, table)
+    xy = patch.taxel_xy()
+    sigma = np.random.default_rng(3).uniform(0.5e-6, 2e-6, len(xy))
+    return patch_detector(tables, xy, grids_for(patch)[0].cell_size, sigma), sigma
+
+
+@pytest.fixture(scope="module", params=["hexagon", "forearm V2"])
+def bank(request, hexagon_bundle) -> tuple[ContactDetector, np.ndarray]:
+    if request.param == "hexagon":
+        recon = Reconstructor.from_bundle(hexagon_bundle[0])
+        return recon.detector, recon.default_noise.copy()
+    return forearm_detector()
+
+
+def frames(det: ContactDetector, sigma: np.ndarray) -> list[np.ndarray]:
+    """White noise at every taxel; a press read on a count lattice (most taxels 0, a few
+    negative on its bulge); a frame that reads nothing."""
+    rng = np.random.default_rng(7)
+    white = rng.standard_normal(len(sigma)) * sigma
+    k = len(det.centres) // 2
+    press = det._responses[k] * (12 * np.median(sigma) / np.abs(det._responses[k]).max())
+    counts = np.rint(press / (2 * sigma)) * 2 * sigma
+    assert 0 < np.count_nonzero(counts) < len(sigma) // 2
+    return [white, counts, np.zeros(len(sigma))]
+
+
+def test_the_bank_is_sparse_and_holds_every_non_zero_response(bank):
+    det, _ = bank
+    nonzero = det._responses != 0
+    # The premise: each filter reads only the taxels within its kernel's reach.
+    assert nonzero.sum(axis=1).max() <= 40 < det._responses.shape[1]
+    held = np.zeros_like(nonzero)
+    for m in range(len(det._responses)):
+        a, b = det._row_ptr[m], det._row_ptr[m + 1]
+        held[m, det._row_cols[a:b]] = True
+    np.testing.assert_array_equal(held, nonzero)
+    by_taxel = np.zeros_like(nonzero)
+    for k in range(det._responses.shape[1]):
+        a, b = det._col_ptr[k], det._col_ptr[k + 1]
+        by_taxel[det._col_rows[a:b], k] = True
+    np.testing.assert_array_equal(by_taxel, nonzero)
+
+
+def test_each_taxel_alone_reads_its_column_of_the_dense_bank(bank):
+    det, sigma = bank
+    f = dense_filters(det._responses, sigma)
+    for k in range(len(sigma)):
+        e = np.zeros(len(sigma))
+        e[k] = sigma[k]
+        np.testing.assert_allclose(det.statistics(e), f[:, k] * sigma[k], rtol=EPS32, atol=0)
+
+
+def test_statistics_equal_the_dense_product(bank):
+    det, sigma = bank
+    f = dense_filters(det._responses, sigma)
+    for delta in frames(det, sigma):
+        assert mismatch(det, sigma, delta) <= 1.0
+        ref = f @ delta
+        best, _, i = det.statistic(delta)
+        assert best == pytest.approx(ref.max(), rel=1e-5, abs=1e-9)
+        assert ref[i] == pytest.approx(ref.max(), rel=1e-5, abs=1e-9)  # the best (or a tie)
+        # One filter alone (frame_noise, near_miss): the same sums, filter by filter.
+        for m in (0, i, len(ref) // 3, len(ref) - 1):
+            assert det.filter_statistic(m, delta) == pytest.approx(ref[m], rel=1e-5, abs=1e-9)
+
+
+def test_statistics_follow_set_noise(bank):
+    det, sigma = bank
+    try:
+        # A uniform multiple keeps the filters (the statistics scaled) ...
+        det.set_noise(1.7 * sigma)
+        rebuilds = det.rebuilds
+        for delta in frames(det, sigma):
+            assert mismatch(det, 1.7 * sigma, delta) <= 1.0 + 1e-6
+        # ... another noise rebuilds them.
+        other = sigma * np.random.default_rng(11).uniform(0.5, 2.0, len(sigma))
+        det.set_noise(other)
+        assert det.rebuilds == rebuilds + 1
+        for delta in frames(det, other):
+            assert mismatch(det, other, delta) <= 1.0
+            assert det.statistic(delta)[0] == pytest.approx(
+                (dense_filters(det._responses, other) @ delta).max(), rel=1e-5, abs=1e-9
+            )
+    finally:
+        det.set_noise(sigma)
+
+
+def test_a_dropped_entry_is_seen(bank):
+    """The check above can fail: the bank with one taxel's weight in one filter missing (the
+    largest of the column, as a wrong sparsity pattern would drop it) reads differently."""
+    det, sigma = bank
+    k = int(np.argmax(np.abs(det._responses).sum(axis=0)))
+    a, b = det._col_ptr[k], det._col_ptr[k + 1]
+    p = a + int(np.argmax(np.abs(det._col_vals[a:b])))
+    e = np.zeros(len(sigma))
+    e[k] = sigma[k]
+    kept = det._col_vals[p]
+    try:
+        det._col_vals[p] = 0.0
+        assert mismatch(det, sigma, e) > 1e3
+    finally:
+        det._col_vals[p] = kept
+    assert mismatch(det, sigma, e) <= 1.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(2, 40),
+    st.integers(2, 30),
+    st.data(),
+)
+def test_random_sparse_banks_equal_the_dense_product(m, k, data):
+    shape = (m, k)
+    values = data.draw(arrays(np.float64, shape, elements=st.floats(0.01, 1.0)))
+    mask = data.draw(arrays(np.bool_, shape))
+    mask[np.arange(m), np.arange(m) % k] = True  # no filter without a taxel
+    responses = np.where(mask, values, 0.0)
+    sigma = data.draw(arrays(np.float64, k, elements=st.floats(0.5, 2.0)))
+    delta = data.draw(arrays(np.float64, k, elements=st.floats(-3.0, 3.0)))
+    delta[data.draw(arrays(np.bool_, k))] = 0.0
+    det = ContactDetector(responses, np.zeros((m, 2)), sigma)
+    assert mismatch(det, sigma, delta) <= 1.0
+    ref = dense_filters(responses, sigma) @ delta
+    best, _, i = det.statistic(delta)
+    assert best == pytest.approx(ref.max(), rel=1e-6, abs=1e-12)
+    assert ref[i] == pytest.approx(ref.max(), rel=1e-6, abs=1e-12)
