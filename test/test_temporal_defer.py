@@ -110,3 +110,19 @@ def test_a_change_drops_the_deferred_resolve_and_is_solved_at_once(setup):
     assert r.fusion.catch_up() and r.fusion.result.frames == 2
     assert abs(r.fusion.result.total_force / 3.0 - 1) < 0.3
     assert not r.fusion.catch_up()
+
+
+def test_the_fusion_keeps_the_frame_the_solve_converted(setup):
+    """The node's noise tracker learns from the δ the solve converted (FrameFusion.context)
+    instead of converting the readings again: the same arrays, bit for bit, excluded taxels
+    too."""
+    bundle, r0, truth, sigma = setup
+    r = Reconstructor.from_bundle(bundle, follow=True, fuse=True)
+    rng = np.random.default_rng(2)
+    valid = np.ones(r.n_taxels, bool)
+    valid[[3, 40]] = False
+    for dc in _frames(r0, truth, rng)[:30]:
+        r.solve(dc, valid, noise=sigma)
+        d, ok = r.readings.from_delta_c(dc, valid)
+        seen = r.fusion.context
+        assert np.array_equal(seen.delta, d) and np.array_equal(seen.ok, ok)

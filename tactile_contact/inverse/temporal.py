@@ -307,6 +307,12 @@ class FrameFusion:
         return res
 
     @property
+    def context(self) -> object:
+        """What the last :meth:`step` was given as ``context`` (from a Reconstructor: the
+        frame's :class:`~tactile_contact.inverse.readings.Frame`, the δ it converted)."""
+        return self._context
+
+    @property
     def pending(self) -> bool:
         """Whether a re-solve waits for :meth:`catch_up` (``defer``)."""
         return self._pending is not None

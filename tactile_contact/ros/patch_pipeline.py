@@ -28,6 +28,7 @@ from threadpoolctl import threadpool_limits
 from visualization_msgs.msg import MarkerArray
 
 from tactile_contact.inverse.detection import NoiseTracker
+from tactile_contact.inverse.readings import Frame
 from tactile_contact.inverse.reconstruction import Reconstructor
 from tactile_contact.model.surface import Surface
 from tactile_contact.msg import ContactState, GridGeometry, TaxelArray
@@ -384,11 +385,15 @@ class PatchPipeline:
             want_deflection=want_deflection,
             noise=self.noise.sigma,
         )
-        if not result.in_contact:
-            # δ of the taxels used, as the solve converted them (one compiled pass; δ as
-            # Reconstructor.compression gives it, bit for bit).
-            self.noise.update(*self.recon.readings.from_delta_c(readings, valid), False)
         fusion = self.recon.fusion
+        if not result.in_contact:
+            # δ of the taxels used, as the solve converted them (δ as Reconstructor.compression
+            # gives it, bit for bit): the frame the fusion was given, else converted again.
+            seen = fusion.context if fusion is not None else None
+            if isinstance(seen, Frame):
+                self.noise.update(seen.delta, seen.ok, False)
+            else:
+                self.noise.update(*self.recon.readings.from_delta_c(readings, valid), False)
         if fusion is not None and fusion.pending:
             self.node.batches.defer(self)  # (run after the frame's summary is published)
         t2 = time.perf_counter()
