@@ -83,6 +83,6 @@ def test_warm_up_compiles_what_the_frames_need(tmp_path: Path) -> None:
     warmed, after = result["warmed"], result["after"]
     # Kernels only ever inlined into others show no signature of their own; every one that
     # is called from Python must be built.
-    assert all(warmed[name] for name in ("fit_one", "posterior_mean", "predict", "render")), warmed
+    assert all(warmed[name] for name in ("fit_near", "posterior_mean", "predict", "render")), warmed
     new = {name: sorted(set(after[name]) - set(warmed[name])) for name in after}
     assert not any(new.values()), f"compiled only on real frames, after warm_up: {new}"

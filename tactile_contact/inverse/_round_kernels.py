@@ -425,6 +425,75 @@ def fit_one(  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
+def fit_near(  # pragma: no cover - compiled
+    table,
+    t0,
+    dt,
+    step,
+    xy,
+    d,
+    w2,
+    starts,
+    offsets,
+    reach,
+    radius_index,
+    n_pre,
+    pre,
+    keep,
+    iterations,
+):
+    """:func:`fit_one` on the taxels within ``reach`` [m] of any of ``starts`` (S, 2) [m],
+    searched on the lattice ``offsets`` (L, 2) [m] around each start, and the best contact's
+    prediction at every taxel: (found, (cost, x, y, t, F, family), prediction (N,)); found
+    False when no taxel is that near. ``xy`` (N, 2) [m], ``d`` (N,) [m] and ``w2`` (N,)
+    [1/m²] are every taxel's. The same operations as the Python steps it replaces
+    (round_contact.fit_round_contact), in one call: those cost ≈ 0.1 ms a search.
+    """
+    n = xy.shape[0]
+    n_s = starts.shape[0]
+    local = np.zeros(n, np.bool_)
+    for i in range(n):
+        if n_s == 1:
+            dx, dy = xy[i, 0] - starts[0, 0], xy[i, 1] - starts[0, 1]
+            local[i] = dx * dx + dy * dy <= reach * reach
+        else:
+            near2 = np.inf
+            for j in range(n_s):
+                dx, dy = xy[i, 0] - starts[j, 0], xy[i, 1] - starts[j, 1]
+                near2 = min(near2, dx * dx + dy * dy)
+            local[i] = math.sqrt(near2) <= reach
+    m = int(local.sum())
+    pred = np.zeros(n)
+    none = (np.inf, 0.0, 0.0, 0.0, 0.0, -1)
+    if m == 0:
+        return False, none, pred
+    lxy = np.empty((m, 2))
+    ld = np.empty(m)
+    lw2 = np.empty(m)
+    q = 0
+    for i in range(n):
+        if local[i]:
+            lxy[q, 0], lxy[q, 1] = xy[i, 0], xy[i, 1]
+            ld[q], lw2[q] = d[i], w2[i]
+            q += 1
+    n_l = offsets.shape[0]
+    centres = np.empty((n_s * n_l, 2))
+    group = np.empty(n_s * n_l, np.int64)
+    for j in range(n_s):
+        for k in range(n_l):
+            centres[j * n_l + k, 0] = starts[j, 0] + offsets[k, 0]
+            centres[j * n_l + k, 1] = starts[j, 1] + offsets[k, 1]
+            group[j * n_l + k] = j
+    best = fit_one(
+        table, t0, dt, step, lxy, ld, lw2, centres, group, n_s, radius_index, n_pre, pre, keep,
+        iterations,
+    )  # fmt: skip
+    if best[4] > 0.0:
+        pred = predict(table, best[5], t0, dt, step, xy, best[1], best[2], best[3], best[4])
+    return True, best, pred
+
+
+@numba.njit(**_JIT)
 def fit_from(table, t0, dt, step, xy, d, w2, starts, pre, keep, iterations):  # pragma: no cover
     """Best single contact from the starts (N, 4) (x [m], y [m], log radius t, family): ``pre``
     Levenberg–Marquardt iterations from each, the ``keep`` lowest then to ``iterations``;

@@ -289,46 +289,57 @@ def fit_round_contact(
     within ``search`` [m] (default SEARCH_HALF) gives every family and about SEARCH_RADII
     tabulated radii (evenly spread) their best centre; the FIT_CANDIDATES best of those
     run a few Levenberg–Marquardt steps, the FIT_KEEP best of these to convergence
-    (:func:`tactile_contact.inverse._round_kernels.fit_one`). ``thorough``: a wider lattice
-    (THOROUGH_HALF), every radius and more candidates, for readings the usual search left
-    unexplained (≈ 2–3× its cost; :func:`hop_round_contact` looks around a fit). The force is
-    a fitted variable kept ≥ 0. Taxels farther than ``near`` [m] from every start are left
-    out of the fit (their readings count in ``residual``). ``sigma`` [m], a scalar or one per
-    taxel, weights the readings (default: equal weights). ``polish`` False stops at fewer
-    iterations (model choice between one and several contacts). None if no profile fits with
-    F > 0.
+    (:func:`tactile_contact.inverse._round_kernels.fit_near`, one compiled call). ``thorough``:
+    a wider lattice (THOROUGH_HALF), every radius and more candidates, for readings the usual
+    search left unexplained (≈ 2–3× its cost; :func:`hop_round_contact` looks around a fit).
+    The force is a fitted variable kept ≥ 0. Taxels farther than ``near`` [m] from every
+    start are left out of the fit (their readings count in ``residual``). ``sigma`` [m], a
+    scalar or one per taxel, weights the readings (default: equal weights). ``polish`` False
+    stops at fewer iterations (model choice between one and several contacts). None if no
+    profile fits with F > 0.
     """
-    from tactile_contact.inverse._round_kernels import fit_one
+    from tactile_contact.inverse._round_kernels import fit_near
 
-    xy = np.asarray(taxel_xy, dtype=np.float64)
-    d = np.asarray(delta, dtype=np.float64)
-    c0 = np.asarray(start_xy, dtype=np.float64).reshape(-1, 2)
-    found = _near(tables, xy, d, c0, near, sigma)
-    if found is None:
-        return None
-    local, w2 = found
+    xy = np.ascontiguousarray(taxel_xy, dtype=np.float64)
+    d = np.ascontiguousarray(delta, dtype=np.float64)
+    c0 = np.ascontiguousarray(start_xy, dtype=np.float64).reshape(-1, 2)
     t0, dt = tables.log_grid
     if search is None:
         search = THOROUGH_HALF if thorough else SEARCH_HALF
-    offsets = _lattice_offsets(search, SEARCH_PITCH)
-    best = fit_one(
+    # The taxels near a start, the lattices around the starts, the search and the prediction
+    # at every taxel in one compiled call (as _near and _round_fit would, step by step).
+    found, best, pred = fit_near(
         tables.table,
         t0,
         dt,
         tables.step,
-        np.ascontiguousarray(xy[local]),
-        np.ascontiguousarray(d[local]),
-        np.ascontiguousarray(w2),
-        np.ascontiguousarray((c0[:, None, :] + offsets[None]).reshape(-1, 2)),
-        np.repeat(np.arange(len(c0)), len(offsets)),
-        len(c0),
+        xy,
+        d,
+        _weights(sigma, d),
+        c0,
+        _lattice_offsets(search, SEARCH_PITCH),
+        min(near, tables.reach),
         _every(len(tables.radii), 1 if thorough else len(tables.radii) // SEARCH_RADII),
         THOROUGH_CANDIDATES if thorough else FIT_CANDIDATES,
         FIT_PRE_ITERATIONS,
         THOROUGH_KEEP if thorough else FIT_KEEP,
         FIT_ITERATIONS if polish else FIT_PRE_ITERATIONS * 2,
     )
-    return _round_fit(tables, xy, d, best)
+    _cost, x, y, t, force, fam = best
+    if not (found and force > 0):
+        return None
+    res = float(np.linalg.norm(pred - d))
+    return RoundFit(float(force), (float(x), float(y)), int(fam), float(math.exp(t)), res)
+
+
+def _weights(sigma: float | ArrayLike | None, d: NDArray) -> NDArray[np.float64]:
+    """(K,) weights 1/σ² of readings ``d`` (1 without ``sigma``; a scalar for every taxel)."""
+    if sigma is None:
+        return np.ones(len(d))
+    s = np.asarray(sigma, dtype=np.float64)
+    if s.shape != d.shape:
+        s = np.broadcast_to(s, d.shape)  # (a scalar; else it names the wrong shape)
+    return np.ascontiguousarray(1.0 / np.square(s))
 
 
 def hop_round_contact(
