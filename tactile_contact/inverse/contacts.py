@@ -4,7 +4,8 @@ The reconstructor's default refinement (``refine: round``). Each contact is a ro
 of :mod:`tactile_contact.inverse.round_contact` (family, radius, force, centre), reported by its
 posterior mean. Several are fitted only where the readings call for them: taxels reading well
 above the contact threshold, far apart and parted by a dip in the readings between them seed
-one contact each, and the separate contacts replace the single one only if they explain the
+one contact each, a contact too light for that is seeded where the contacts already fitted
+leave readings unexplained, and separate contacts replace fewer only if they explain the
 readings better by more than the extra parameters fitted to noise would.
 
 All lengths in metres, forces in newtons, readings as compressions δ [m]. No ROS import.
@@ -34,6 +35,14 @@ CONTACT_SEPARATION = 8.0e-3
 #: through the driver an idle taxel reads up to about 1.7 counts (its baseline offset, the
 #: converter noise), and seeding there split one pressed sphere into three contacts.
 CONTACT_SEED_LEVEL = 2.5
+#: A contact too light to seed from the readings is seeded from what the others leave
+#: (ContactFitter.from_residual) above this many contact thresholds (≈ 1.6 counts); the
+#: evidence margin below still decides.
+RESIDUAL_SEED_LEVEL = 1.5
+#: ... and at least this far [m] from every contact already fitted: nearer, the tables' own
+#: error around a strong press (its bulge ring reaches about 12 mm) stands out of the
+#: residual as much (a 3 N, 3 mm punch split off a 0.5 N contact 8 mm beside it).
+RESIDUAL_APART = 12.0e-3
 #: Separate contacts replace the single one only if they lower the squared residual by more
 #: than this many σ² (σ = one count/√6, the reading's rounding error): each adds four
 #: parameters, and noise alone lowers it by about 4σ² for those (χ², 4 degrees of freedom;
@@ -116,7 +125,11 @@ class ContactFitter:
                     single = again
         fits = [single] if single is not None else []
         residual = single.residual if single is not None else math.inf
+        # The evidence is weighed in the readings' noise: the rounding's at least, the noise
+        # passed in (a tracked level) where larger, or the one measured on the far taxels.
         level = self.count_sigma
+        if self.sigma is not None:
+            level = max(level, float(np.sqrt(np.mean(np.square(self.sigma)))))
         if self.estimate_noise and single is not None:
             level = max(level, self.far_noise([single], xy, d) or 0.0)
         # Separate contacts must lower the squared residual by the evidence margin: a single
@@ -127,24 +140,98 @@ class ContactFitter:
             if residual**2 > margin
             else []
         )
+        points: list[RoundFit] = []
         if len(seeds) > 1:
             # Model choice on least-squares points (their residuals are those of the
             # predictions subtracted); the posterior then reports each contact.
             points = self.least_squares(seeds, xy, d)
-            if len(points) > 1 and apart(points, CONTACT_SEPARATION):
-                r_multi = float(np.linalg.norm(d - self.predicted(points, xy)))
-                r_one = residual
-                if r_one**2 - r_multi**2 > margin:
-                    # The unweighted single fit may explain more than the weighted one.
+            kept = spread(points, CONTACT_SEPARATION)
+            if 1 < len(kept) < len(points):
+                # Two seeds under one broad contact (a 12 mm punch reads alike under its
+                # face) fitted one contact twice: refit from the contacts that stand apart
+                # rather than give up the separate ones.
+                points = self.least_squares([f.center for f in kept], xy, d)
+            if len(points) < 2 or not apart(points, CONTACT_SEPARATION):
+                points = []
+        r_one = residual
+        if points:
+            r_multi = float(np.linalg.norm(d - self.predicted(points, xy)))
+            if r_one**2 - r_multi**2 > margin:
+                # The unweighted single fit may explain more than the weighted one.
+                one = fit_round_contact(self.tables, xy, d, start, polish=False)
+                r_one = min(one.residual if one is not None else math.inf, residual)
+            if r_one**2 - r_multi**2 <= margin:
+                points = []
+        if single is not None and residual**2 > margin and len(points) < self.max_contacts:
+            # A contact too light to seed from the readings (its strongest taxel under
+            # CONTACT_SEED_LEVEL, often beside a strong one) still stands out of what the
+            # contacts already fitted leave: seed from that residual, under the same evidence.
+            base = points or [single]
+            if self.residual_peak(base, xy, d, level) is not None:
+                if not points:  # the least-squares point the separate ones are weighed against
                     one = fit_round_contact(self.tables, xy, d, start, polish=False)
-                    r_one = min(one.residual if one is not None else math.inf, residual)
-                if r_one**2 - r_multi**2 > margin:
-                    fits, residual = [], r_multi
-                    for k, f in enumerate(points):
-                        rest = d - self.predicted(points, xy, skip=k)
-                        post = fit_round_contact(self.tables, xy, rest, f.center, sigma=self.sigma)
-                        fits.append(post if post is not None else f)
+                    base = [one] if one is not None else []
+                    r_one = one.residual if one is not None else math.inf
+                r2 = min(r_one, residual) ** 2 if not points else None
+                more = self.from_residual(base, xy, d, level, margin, r2) if base else []
+                if len(more) > max(len(points), 1):
+                    points = more
+        if len(points) > 1:
+            fits, residual = [], float(np.linalg.norm(d - self.predicted(points, xy)))
+            for k, f in enumerate(points):
+                rest = d - self.predicted(points, xy, skip=k)
+                post = fit_round_contact(self.tables, xy, rest, f.center, sigma=self.sigma)
+                fits.append(post if post is not None else f)
         return (fits, residual) if fits else None
+
+    def from_residual(
+        self,
+        points: list[RoundFit],
+        xy: NDArray,
+        d: NDArray,
+        level: float,
+        margin: float,
+        r2: float | None = None,
+    ) -> list[RoundFit]:
+        """``points`` (least-squares contacts) and, one at a time up to ``max_contacts``,
+        a contact seeded at the taxel the others explain least (at least RESIDUAL_APART
+        from each, reading above RESIDUAL_SEED_LEVEL contact thresholds times ``level``/σ
+        there), kept when the contacts refitted together lower the squared residual by more
+        than ``margin`` [m²] (against ``r2`` [m²], by default the squared residual of
+        ``points``)."""
+        if r2 is None:
+            r2 = float(np.sum(np.square(d - self.predicted(points, xy))))
+        while len(points) < self.max_contacts:
+            i = self.residual_peak(points, xy, d, level)
+            if i is None:
+                break
+            rest = d - self.predicted(points, xy)
+            new = fit_round_contact(self.tables, xy, rest, xy[i], polish=False)
+            if new is None:
+                break
+            trial = self.least_squares([f.center for f in points] + [new.center], xy, d)
+            if len(trial) <= len(points) or not apart(trial, CONTACT_SEPARATION):
+                break
+            r2_trial = float(np.sum(np.square(d - self.predicted(trial, xy))))
+            if r2 - r2_trial <= margin:
+                break
+            points, r2 = trial, r2_trial
+        return points
+
+    def residual_peak(
+        self, points: list[RoundFit], xy: NDArray, d: NDArray, level: float
+    ) -> int | None:
+        """The taxel (index into xy) at least RESIDUAL_APART from each of the contacts
+        ``points`` whose reading they explain least, when that residual exceeds
+        RESIDUAL_SEED_LEVEL contact thresholds times ``level``/σ (the readings' noise over the
+        assumed one, at least 1); else None."""
+        floor = RESIDUAL_SEED_LEVEL * max(level / self.count_sigma, 1.0) * self.contact_threshold
+        free = distance_to_points(xy, np.array([f.center for f in points])) >= RESIDUAL_APART
+        if not free.any():
+            return None
+        rest = np.where(free, d - self.predicted(points, xy), -np.inf)
+        i = int(np.argmax(rest))
+        return i if rest[i] > floor else None
 
     def unexplained(self, fit: RoundFit, xy: NDArray, d: NDArray, start: NDArray) -> bool:
         """Whether the least-squares contact ``fit`` leaves readings unexplained by noise: its
@@ -325,6 +412,18 @@ def dip_between(xy: NDArray, d: NDArray, i: int, j: int) -> bool:
     off = np.abs((xy - a) @ np.array([-u[1], u[0]])) / math.hypot(*u)
     between = (t > 0.2) & (t < 0.8) & (off <= 4.0e-3)
     return not between.any() or float(d[between].min()) < 0.5 * min(float(d[i]), float(d[j]))
+
+
+def spread(fits: list[RoundFit], distance: float) -> list[RoundFit]:
+    """The contacts ``fits`` in order, but each within ``distance`` [m] of one kept before it."""
+    kept: list[RoundFit] = []
+    for f in fits:
+        if all(
+            math.hypot(f.center[0] - k.center[0], f.center[1] - k.center[1]) >= distance
+            for k in kept
+        ):
+            kept.append(f)
+    return kept
 
 
 def apart(fits: list[RoundFit], distance: float) -> bool:
