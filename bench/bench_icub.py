@@ -9,7 +9,8 @@ default hexagon (config/hexagon_patch.yaml, 72 taxels), measured in the same run
   CPU time; the forearm's as a ratio of the hexagon's (target: forearm < 60 s wall);
 * frames: the 8-bit readings below through ``Reconstructor.solve`` on one core, shuffled,
   ``--repeat`` passes; p50 and p99 per patch and per number of contacts (target: forearm
-  ≤ 2 ms p50), ratio to the hexagon's single contacts;
+  ≤ 2 ms p50), ratio to the hexagon's single contacts; and as many idle frames (8-bit
+  readings of the converter noise alone, nothing pressed);
 * several contacts: 1, 2 and 3 simultaneous contacts on the forearm (spheres 12 and 6 mm or
   flat punches 12 and 3 mm, one family a scene, 0.5–3 N each, centres 15–40 mm apart and on
   the skin); single contacts of the same kinds on the hexagon. Truth: the fine forward model
@@ -272,6 +273,11 @@ def main() -> None:
                     tables.setdefault(f"{label}|{n}|all, clear", []).append(m)
                 frames.setdefault(f"{label}|{n}", []).append(dc)
             print(f"  {label}: {n} contact(s) done", file=sys.stderr, flush=True)
+        # Idle frames (nothing pressed: 8-bit readings of the converter noise alone), timed
+        # only: what every patch costs when nothing touches it.
+        rng = np.random.default_rng(_seed(label, "idle"))
+        zero = np.zeros((args.scenes, recon.n_taxels))
+        frames[f"{label}|0 (idle)"] = list(readings(lay, zero, "8-bit", rng))
 
     rep("")
     rep(
