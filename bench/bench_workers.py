@@ -394,6 +394,12 @@ def main() -> int:
         "(e.g. `git archive <commit> tactile_contact | tar -x -C DIR`), just before this "
         "tree's: before and after in the same run",
     )
+    ap.add_argument(
+        "--after",
+        type=Path,
+        help="the workers of the phases not marked 'before' run the package in this folder "
+        "instead of this tree's (e.g. one commit's files, while others edit the working tree)",
+    )
     ap.add_argument("--source-child", nargs=4, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.source_child:
@@ -419,6 +425,7 @@ def main() -> int:
         lines.append(text)
 
     def phase(key: str, *a: object, tree: Path | None = None) -> dict:
+        tree = tree or args.after
         r = run_phase(*a, args.warmup, args.profile, tree)  # type: ignore[arg-type]
         results[key] = r
         say(

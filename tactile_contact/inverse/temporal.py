@@ -83,6 +83,11 @@ IDLE_WINDOWS = (4, 8, 16, 32)
 IDLE_TRIGGER = 1e-2
 IDLE_HOLDOFF = 2
 IDLE_EVERY = 16
+#: With ``defer``, a window's re-solve is left to catch_up only from this many frames on:
+#: a shorter window follows a change (a contact that moves or settles), whose re-solve is
+#: wanted in its own frame; the long windows of a held press are the dear ones (5–12 ms at
+#: 20–50 frames on the robot's patches, docs/bench/tail.md) and gain least from one frame.
+DEFER_FROM = 8
 #: False-change rate of each test per frame (a false change costs one solve and restarts the
 #: window).
 ALPHA = 1e-3
@@ -137,9 +142,10 @@ class FrameFusion:
         jacobian: the result's parameter directions (:data:`Jacobian`).
         screen: for the idle windows solved on the clock (every ``idle_every`` frames, not
             picked by the scan), whether to solve at all (:data:`Screen`); None: solve.
-        defer: a re-solve that no change asks for (the window's, on its schedule, and an idle
-            patch's look into its window means) is not run inside :meth:`step`, which
-            republishes the last result, but by the next :meth:`catch_up`: a caller serving
+        defer: a re-solve that no change asks for (the window's on its schedule, from
+            DEFER_FROM frames, and an idle patch's look into its window means) is not run
+            inside :meth:`step`, which republishes the last result, but by the next
+            :meth:`catch_up`: a caller serving
             many patches publishes every patch's frame first and spends the time after
             (contact_reconstruction). The fusion's state after catch_up is what step would
             have left; its result reaches the next frame. False (the default): run at once.
@@ -289,7 +295,7 @@ class FrameFusion:
         )
         if res.in_contact or missing:  # type: ignore[attr-defined]
             due = n in RESOLVE_AT if n < self.window else self._since >= self.resolve_every
-            if missing or (due and not self.defer):
+            if missing or (due and (not self.defer or n < DEFER_FROM)):
                 return self._resolve(sigma, want_traction, want_deflection)
             if due:
                 self._pending = ("resolve", 0, False, sigma, want_traction, want_deflection)
