@@ -47,6 +47,13 @@ def mismatch(det: ContactDetector, sigma: np.ndarray, delta: np.ndarray) -> floa
     return float(np.max(np.abs(det.statistics(delta) - ref) / bound))
 
 
+def best_tolerance(f: np.ndarray, delta: np.ndarray) -> float:
+    """How far the bank's largest statistic may be from the float64 reference's: float32
+    rounding of K + 1 terms (a small bank's dense product reads δ in float32 and sums in
+    float32, as before the sparse bank)."""
+    return (f.shape[1] + 2) * EPS32 * float((np.abs(f) @ np.abs(delta)).max()) + 1e-12
+
+
 def forearm_detector() -> tuple[ContactDetector, np.ndarray]:
     """The imported iCub forearm V2's detector (its round tables computed as the bundle build
     does, its taxels and traction cell from config/icub/left_forearm_V2.yaml), with a
@@ -120,13 +127,14 @@ def test_statistics_equal_the_dense_product(bank):
     f = dense_filters(det._responses, sigma)
     for delta in frames(det, sigma):
         assert mismatch(det, sigma, delta) <= 1.0
-        ref = f @ delta
+        ref, tol = f @ delta, best_tolerance(f, delta)
         best, _, i = det.statistic(delta)
-        assert best == pytest.approx(ref.max(), rel=1e-5, abs=1e-9)
-        assert ref[i] == pytest.approx(ref.max(), rel=1e-5, abs=1e-9)  # the best (or a tie)
+        assert abs(best - ref.max()) <= tol
+        assert ref.max() - ref[i] <= 2 * tol  # the best (or one within rounding of it)
         # One filter alone (frame_noise, near_miss): the same sums, filter by filter.
         for m in (0, i, len(ref) // 3, len(ref) - 1):
-            assert det.filter_statistic(m, delta) == pytest.approx(ref[m], rel=1e-5, abs=1e-9)
+            bound = EPS32 * float(np.abs(f[m]) @ np.abs(delta)) + 1e-12
+            assert abs(det.filter_statistic(m, delta) - ref[m]) <= bound
 
 
 def test_statistics_follow_set_noise(bank):
@@ -143,9 +151,8 @@ def test_statistics_follow_set_noise(bank):
         assert det.rebuilds == rebuilds + 1
         for delta in frames(det, other):
             assert mismatch(det, other, delta) <= 1.0
-            assert det.statistic(delta)[0] == pytest.approx(
-                (dense_filters(det._responses, other) @ delta).max(), rel=1e-5, abs=1e-9
-            )
+            f = dense_filters(det._responses, other)
+            assert abs(det.statistic(delta)[0] - (f @ delta).max()) <= best_tolerance(f, delta)
     finally:
         det.set_noise(sigma)
 
@@ -185,7 +192,8 @@ def test_random_sparse_banks_equal_the_dense_product(m, k, data):
     delta[data.draw(arrays(np.bool_, k))] = 0.0
     det = ContactDetector(responses, np.zeros((m, 2)), sigma)
     assert mismatch(det, sigma, delta) <= 1.0
-    ref = dense_filters(responses, sigma) @ delta
+    f = dense_filters(responses, sigma)
+    ref, tol = f @ delta, best_tolerance(f, delta)
     best, _, i = det.statistic(delta)
-    assert best == pytest.approx(ref.max(), rel=1e-6, abs=1e-12)
-    assert ref[i] == pytest.approx(ref.max(), rel=1e-6, abs=1e-12)
+    assert abs(best - ref.max()) <= tol
+    assert ref.max() - ref[i] <= 2 * tol
