@@ -3,6 +3,8 @@ forward simulation (tactile_contact.model.forward), on a hexagonal 5.5 mm taxel 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -16,10 +18,12 @@ from tactile_contact.inverse.contacts import (
 from tactile_contact.inverse.round_contact import RoundFit, round_tables
 from tactile_contact.model.forward import ForwardModel
 from tactile_contact.model.indenters import FlatPunch, HertzSphere
+from tactile_contact.model.layout import load_layout
 
 H, E, NU, ELECTRODE = 2e-3, 2.1e5, 0.5, 2e-3
 COUNT = 1.0e-5  # one 8-bit count of compression [m], about
 PITCH = 5.5e-3
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _lattice() -> np.ndarray:
@@ -170,3 +174,45 @@ def test_noise_alone_does_not_split_a_single_contact(fitter, truth):
         d = np.rint(clean / COUNT + rng.normal(0.0, 1.0, clean.shape)) * COUNT
         assert len(passed.fit(XY, d, None)[0]) == 1
         assert len(measured.fit(XY, d, None)[0]) == 1
+
+
+@pytest.fixture(scope="module")
+def forearm_xy():
+    return load_layout(ROOT / "config" / "icub" / "left_forearm_V2.yaml").patches[0].taxel_xy()
+
+
+def _compression(xy: np.ndarray, indenter, force: float, centre) -> np.ndarray:
+    """The fine forward model's compressions [m] of the taxels within 25 mm of ``centre``."""
+    near = np.hypot(*(xy - centre).T) <= 25e-3
+    out = np.zeros(len(xy))
+    model = ForwardModel(xy[near], H, E, NU, fine_cell=5e-4, taxel_radius=ELECTRODE)
+    out[near] = model.compression(indenter, force, np.asarray(centre))
+    return out
+
+
+def test_a_contact_read_as_its_bulge_is_seeded_from_the_residual_energy(fitter, forearm_xy):
+    # On the iCub forearm's sparser taxels (6.5 mm, with gaps), a 3 mm punch at 1.79 N 3.2 mm
+    # from its nearest taxel, 15.8 mm from a 2.86 N one, reads at most 1.4 counts above and
+    # 2.8 below (its bulge): no taxel stood out of the first contact's residual, and that
+    # contact was reported alone at 3.55 N. The residual's energy around the taxels finds it.
+    xy = forearm_xy
+    c1, c2 = np.array([-67.9e-3, 37.5e-3]), np.array([-72.3e-3, 22.3e-3])
+    weak = _compression(xy, FlatPunch(1.5e-3), 1.79, c2)
+    d = _compression(xy, FlatPunch(1.5e-3), 2.86, c1) + weak
+    assert weak.max() < 1.5 * COUNT
+    fits, _ = fitter.fit(xy, np.rint(d / COUNT) * COUNT, None)
+    assert len(fits) == 2
+    by_y = sorted(fits, key=lambda f: -f.center[1])
+    for fit, centre, force in zip(by_y, (c1, c2), (2.86, 1.79), strict=True):
+        assert np.hypot(*(np.asarray(fit.center) - centre)) < 1.0e-3
+        assert fit.force == pytest.approx(force, rel=0.2)
+
+
+def test_one_taxels_offset_beside_a_contact_seeds_nothing(fitter, truth):
+    # A taxel reading 1.7 counts of baseline offset (the driver leaves up to that on idle
+    # taxels) 21 mm from a pressed sphere: no neighbour reads with it, so its energy stays
+    # under the residual seed's level and no contact is made of it.
+    d = np.rint(truth.compression(HertzSphere(6e-3), 2.0, XY[_at(-11e-3)]) / COUNT) * COUNT
+    d[_at(11e-3, 4.8e-3)] += 1.7 * COUNT
+    fits, _ = fitter.fit(XY, d, None)
+    assert len(fits) == 1

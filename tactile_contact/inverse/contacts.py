@@ -45,6 +45,12 @@ RESIDUAL_SEED_LEVEL = 2.0
 #: error around a strong press (its bulge ring reaches about 12 mm) stands out of the
 #: residual as much (a 3 N, 3 mm punch split off a 0.5 N contact 8 mm beside it).
 RESIDUAL_APART = 12.0e-3
+#: Width [m] (σ of a Gaussian in distance) of the neighbourhood whose residual energy seeds a
+#: contact from the residual: about the taxel pitch (5.5-6.5 mm), so a taxel's neighbours weigh
+#: a quarter to a third of it.
+RESIDUAL_WIDTH = 4.0e-3
+#: The residual's energy is weighed around this many free taxels, those it is largest at.
+RESIDUAL_CANDIDATES = 16
 #: Separate contacts replace the single one only if they lower the squared residual by more
 #: than this many σ² (σ = one count/√6, the reading's rounding error): each adds four
 #: parameters, and noise alone lowers it by about 4σ² for those (χ², 4 degrees of freedom;
@@ -169,13 +175,15 @@ class ContactFitter:
             # CONTACT_SEED_LEVEL, often beside a strong one) still stands out of what the
             # contacts already fitted leave: seed from that residual, under the same evidence.
             base = points or [single]
-            if self.residual_peak(base, xy, d, level) is not None:
+            peak = self.residual_peak(base, xy, d, level)
+            if peak is not None:
                 if not points:  # the least-squares point the separate ones are weighed against
                     one = fit_round_contact(self.tables, xy, d, start, polish=False)
                     base = [one] if one is not None else []
                     r_one = one.residual if one is not None else math.inf
+                    peak = None  # (weighed again against that point)
                 r2 = min(r_one, residual) ** 2 if not points else None
-                more = self.from_residual(base, xy, d, level, margin, r2) if base else []
+                more = self.from_residual(base, xy, d, level, margin, r2, peak) if base else []
                 if len(more) > max(len(points), 1):
                     points = more
         if len(points) > 1:
@@ -194,17 +202,19 @@ class ContactFitter:
         level: float,
         margin: float,
         r2: float | None = None,
+        peak: int | None = None,
     ) -> list[RoundFit]:
         """``points`` (least-squares contacts) and, one at a time up to ``max_contacts``,
         a contact seeded at the taxel the others explain least (at least RESIDUAL_APART
         from each, reading above RESIDUAL_SEED_LEVEL contact thresholds times ``level``/σ
         there), kept when the contacts refitted together lower the squared residual by more
         than ``margin`` [m²] (against ``r2`` [m²], by default the squared residual of
-        ``points``)."""
+        ``points``); ``peak``: the first seed's taxel when already found for ``points``."""
         if r2 is None:
             r2 = float(np.sum(np.square(d - self.predicted(points, xy))))
         while len(points) < self.max_contacts:
-            i = self.residual_peak(points, xy, d, level)
+            i = self.residual_peak(points, xy, d, level) if peak is None else peak
+            peak = None
             if i is None:
                 break
             rest = d - self.predicted(points, xy)
@@ -224,16 +234,28 @@ class ContactFitter:
         self, points: list[RoundFit], xy: NDArray, d: NDArray, level: float
     ) -> int | None:
         """The taxel (index into xy) at least RESIDUAL_APART from each of the contacts
-        ``points`` whose reading they explain least, when that residual exceeds
-        RESIDUAL_SEED_LEVEL contact thresholds times ``level``/σ (the readings' noise over the
-        assumed one, at least 1); else None."""
+        ``points`` around which their residual's energy (Σ of squared residuals weighted by a
+        Gaussian of RESIDUAL_WIDTH in distance) is largest, when that energy exceeds the
+        square of RESIDUAL_SEED_LEVEL contact thresholds times ``level``/σ (the readings' noise
+        over the assumed one, at least 1); else None.
+
+        Why energy, not the largest reading: a small contact between taxels reads mostly as
+        its bulge, negative all round (a 3 mm punch at 2 N, 16 mm from a strong one, left no
+        residual above a count); and a contact's readings spread over its neighbours where
+        one taxel's baseline offset does not."""
         floor = RESIDUAL_SEED_LEVEL * max(level / self.count_sigma, 1.0) * self.contact_threshold
         free = distance_to_points(xy, np.array([f.center for f in points])) >= RESIDUAL_APART
         if not free.any():
             return None
-        rest = np.where(free, d - self.predicted(points, xy), -np.inf)
-        i = int(np.argmax(rest))
-        return i if rest[i] > floor else None
+        rest2 = np.square(d - self.predicted(points, xy))
+        # (The energy peaks at one of the free taxels the residual is largest at: weighing
+        # those alone costs a fraction of every free taxel's.)
+        idx = np.flatnonzero(free)
+        if len(idx) > RESIDUAL_CANDIDATES:
+            idx = idx[np.argpartition(-rest2[idx], RESIDUAL_CANDIDATES)[:RESIDUAL_CANDIDATES]]
+        energy = neighbourhood(xy)[idx] @ rest2
+        best = int(np.argmax(energy))
+        return int(idx[best]) if energy[best] > floor**2 else None
 
     def unexplained(self, fit: RoundFit, xy: NDArray, d: NDArray, start: NDArray) -> bool:
         """Whether the least-squares contact ``fit`` leaves readings unexplained by noise: its
@@ -371,6 +393,24 @@ class ContactFitter:
             ):
                 seeds.append(int(i))
         return seeds
+
+
+_NEIGHBOURHOODS: dict[bytes, NDArray[np.float64]] = {}
+
+
+def neighbourhood(xy: NDArray) -> NDArray[np.float64]:
+    """(K, K) weights exp(−r²/2w²) of the taxels xy [m] (K, 2) on each other, w =
+    RESIDUAL_WIDTH (kept for the last few taxel sets: a patch's frames use one or two)."""
+    key = np.ascontiguousarray(xy, dtype=np.float64).tobytes()
+    w = _NEIGHBOURHOODS.get(key)
+    if w is None:
+        dx = xy[:, 0, None] - xy[None, :, 0]
+        dy = xy[:, 1, None] - xy[None, :, 1]
+        w = np.exp(-(dx * dx + dy * dy) / (2.0 * RESIDUAL_WIDTH**2))
+        if len(_NEIGHBOURHOODS) >= 8:
+            _NEIGHBOURHOODS.pop(next(iter(_NEIGHBOURHOODS)))
+        _NEIGHBOURHOODS[key] = w
+    return w
 
 
 def skin_hull(taxel_xy: NDArray) -> NDArray[np.float64] | None:

@@ -145,7 +145,8 @@ class GridFallback:
                 q, success, iterations = self._constrained(delta, ok)
         fits = None
         if self.tables is not None:
-            fits = self._round_fit(q, delta, ok, count_sigma, fit_sigma, max_contacts)
+            estimate = frame.estimate and frame.frames == 1
+            fits = self._round_fit(q, delta, ok, count_sigma, fit_sigma, max_contacts, estimate)
         return GridSolution(q, path, success, iterations, fits)
 
     def _round_fit(
@@ -156,9 +157,11 @@ class GridFallback:
         count_sigma: float,
         fit_sigma: float,
         max_contacts: int,
+        estimate: bool = False,
     ) -> list[RoundFit] | None:
         """Round contacts started at q's centre of pressure, or None when they explain the
-        data clearly worse than q."""
+        data clearly worse than q; ``estimate``: no noise level was passed with the frame,
+        the contacts' evidence is weighed in the noise the far taxels read."""
         assert self.tables is not None
         xy, d = self._taxel_xy[ok], delta[ok]
         pos = q > 0
@@ -169,6 +172,7 @@ class GridFallback:
             self.contact_threshold,
             sigma=fit_sigma if fit_sigma > 0 else None,
             max_contacts=max_contacts,
+            estimate_noise=estimate,
         )
         found = fitter.fit(xy, d, cop)
         if found is None:
