@@ -228,3 +228,66 @@ def best_split(buf, state, total, sigma, q):  # pragma: no cover - compiled
         if stat > best:
             best, best_k = stat, k
     return best_k, best
+
+
+@numba.njit(**_JIT)
+def quiet_frame(
+    dc,
+    status,
+    perm,
+    unusable,
+    convert,
+    delta,
+    ok,
+    window_ok,
+    sigma,
+    buf,
+    total,
+    state,
+    nbr,
+    local_limit,
+    q,
+    limits,
+    scan,
+    trigger_limit,
+    windows,
+):  # pragma: no cover - compiled
+    """A batch's patch-frame taken straight to the fusion's held step, in one call (what an
+    idle or held patch-frame costs: contact_reconstruction's PatchPipeline).
+
+    Args:
+        dc: (K,) the message's ΔC [F] (any float type), status: (K,) its status flags, both
+            in the message's taxel order; perm: (K,) the message's index of each bundle
+            taxel; unusable: the status flags that leave a taxel out.
+        convert: [h [m], ε0·εr·A [F·m], C0 [F], full scale [F]]
+            (inverse.readings.ReadingModel).
+        delta, ok: (K,) filled with the frame's δ [m] and taxels used, as
+            ReadingModel.from_delta_c gives them for ΔC where the status allows, 0 elsewhere.
+        window_ok … limits: held_step's arguments.
+        scan: run idle_scan (quantised readings) when nothing changed; trigger_limit,
+            windows: its arguments.
+
+    Returns:
+        (code, window, valid): code -1 if a reading is not finite (nothing converted, the
+        fusion untouched: the caller's full path says so), else held_step's answer; the
+        idle scan's window (-1: not run); taxels whose status allows them.
+    """
+    k = perm.shape[0]
+    for i in range(k):
+        if not math.isfinite(dc[perm[i]]):
+            return -1, -1, 0
+    h, eps_area, rest_c, full_scale = convert[0], convert[1], convert[2], convert[3]
+    valid = 0
+    for i in range(k):
+        j = perm[i]
+        x = float(dc[j])
+        good = (status[j] & unusable) == 0
+        valid += good
+        good = good and x > -rest_c and abs(x) <= full_scale
+        ok[i] = good
+        delta[i] = x * (h * h) / (eps_area + x * h) if good else 0.0
+    code = held_step(delta, ok, window_ok, sigma, buf, total, state, nbr, local_limit, q, limits)
+    w = -1
+    if code == 0 and scan:
+        w = idle_scan(buf, state, window_ok, sigma, nbr, trigger_limit, windows, True)
+    return code, w, valid

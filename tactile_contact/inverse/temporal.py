@@ -262,13 +262,7 @@ class FrameFusion:
         change tests assume at least a rounding's scatter). ``context`` goes to the solve
         callback."""
         self._context = context
-        self._quantised = quantised
-        if sigma is not self._sigma_seen[0] or quantised != self._sigma_seen[1]:
-            sigma = np.ascontiguousarray(sigma, dtype=np.float64)
-            floor = self._rounding / float(np.median(sigma)) if quantised else 1e-6
-            self._state[kern.SCALE_FLOOR] = floor * floor
-            self._state[kern.SCALE_PRIOR] = SCALE_PRIOR if quantised else 0.0
-            self._sigma_seen = (sigma, quantised)
+        sigma = self.see_noise(sigma, quantised)
         if self._ok is None or self.result is None:
             return self._fresh(delta, ok, sigma, want_traction, want_deflection, "start")
         changed = kern.held_step(
@@ -284,6 +278,50 @@ class FrameFusion:
             self._q,
             self._limits,
         )
+        return self.after_held_step(
+            changed, delta, ok, sigma, want_traction, want_deflection, context, -1
+        )
+
+    def see_noise(self, sigma: NDArray, quantised: bool) -> NDArray:
+        """Take this frame's ``sigma`` (K,) [m] and ``quantised`` (:meth:`step`'s first part):
+        the tests' floor follows a new noise array. Returns the sigma to pass on."""
+        self._quantised = quantised
+        if sigma is not self._sigma_seen[0] or quantised != self._sigma_seen[1]:
+            sigma = np.ascontiguousarray(sigma, dtype=np.float64)
+            floor = self._rounding / float(np.median(sigma)) if quantised else 1e-6
+            self._state[kern.SCALE_FLOOR] = floor * floor
+            self._state[kern.SCALE_PRIOR] = SCALE_PRIOR if quantised else 0.0
+            self._sigma_seen = (sigma, quantised)
+        return sigma
+
+    @property
+    def holding(self) -> bool:
+        """Whether the next frame is tested against a window (not solved on its own at once)."""
+        return self._ok is not None and self.result is not None
+
+    @property
+    def scan_due(self) -> bool:
+        """Whether the next held frame of an idle result runs the idle scan (the holdoff is
+        over): a caller that ran :func:`~tactile_contact.inverse._temporal_kernels.quiet_frame`
+        passes its scan's answer to :meth:`after_held_step`."""
+        return self._since_check + 1 > IDLE_HOLDOFF
+
+    def after_held_step(
+        self,
+        changed: int,
+        delta: NDArray,
+        ok: NDArray,
+        sigma: NDArray,
+        want_traction: bool,
+        want_deflection: bool,
+        context: object,
+        scanned: int,
+    ) -> object:
+        """:meth:`step` after its compiled held step returned ``changed`` (for a caller that
+        ran that step itself, with the frame's conversion: quiet_frame). ``scanned``: the
+        idle scan's window if the caller ran it too (``scan_due``), else -1; ``sigma`` as
+        :meth:`see_noise` returned it."""
+        self._context = context
         if changed:
             kind = ("frame", "neighbourhood", "parameters", "valid")[changed - 1]
             return self._fresh(delta, ok, sigma, want_traction, want_deflection, kind)
@@ -300,7 +338,7 @@ class FrameFusion:
             if due:
                 self._pending = ("resolve", 0, False, sigma, want_traction, want_deflection)
         else:
-            pick = self._idle_pick(sigma)
+            pick = self._idle_pick(sigma, scanned)
             if pick is not None and self.defer:
                 self._pending = ("idle", *pick, sigma, want_traction, want_deflection)
             elif pick is not None:
@@ -311,6 +349,62 @@ class FrameFusion:
         self.counts.held += 1
         self.last = "held"
         return res
+
+    def step_message(
+        self,
+        delta_c: NDArray,
+        status: NDArray,
+        perm: NDArray,
+        unusable: int,
+        convert: NDArray,
+        sigma: NDArray,
+        want_traction: bool = False,
+        want_deflection: bool = False,
+    ) -> tuple[object, Frame, int] | None:
+        """:meth:`step` of a message's raw readings, converted and tested in one compiled
+        call (:func:`~tactile_contact.inverse._temporal_kernels.quiet_frame`): what an idle
+        or held patch-frame costs a node. Only while :attr:`holding`; ``delta_c`` (K,) ΔC [F]
+        and ``status`` (K,) in the message's order, ``perm`` its index of each taxel,
+        ``unusable`` the status flags left out, ``convert`` the sensor model's constants
+        (quiet_frame), ``sigma`` (K,) [m] one frame's noise (quantised readings).
+
+        Returns (result, the frame as Reconstructor.solve makes it (its context), taxels
+        the status allows), the same as Reconstructor.solve on the readings mapped and masked
+        would give; None for a reading that is not finite (nothing done: the caller's full
+        path reports it)."""
+        sigma = self.see_noise(sigma, True)
+        k = len(self._total)
+        delta = np.empty(k)
+        ok = np.empty(k, dtype=bool)
+        scan = not self.result.in_contact and self.scan_due  # type: ignore[attr-defined]
+        code, w, valid = kern.quiet_frame(
+            delta_c,
+            status,
+            perm,
+            unusable,
+            convert,
+            delta,
+            ok,
+            self._ok,
+            sigma,
+            self._buf,
+            self._total,
+            self._state,
+            self._nbr,
+            self._local_limit,
+            self._q,
+            self._limits,
+            scan,
+            self._trigger_limit,
+            self._idle_windows,
+        )
+        if code < 0:
+            return None
+        frame = Frame(delta, ok, sigma)
+        result = self.after_held_step(
+            code, delta, ok, sigma, want_traction, want_deflection, frame, w
+        )
+        return result, frame, valid
 
     @property
     def context(self) -> object:
@@ -362,6 +456,32 @@ class FrameFusion:
             buf, state, ok, sigma, self._nbr, self._trigger_limit, self._idle_windows, True
         )
         kern.best_split(buf, state, total, sigma, q)
+        # A node's message readings (quiet_frame): read-only float32 ΔC and uint8 status, as
+        # np.frombuffer gives them (inverse.readings' constants; any positive values do).
+        dc = np.frombuffer(bytes(4 * k), dtype=np.float32)
+        status = np.frombuffer(bytes(k), dtype=np.uint8)
+        perm, convert = np.arange(k), np.array([1e-3, 1e-15, 1e-12, 1e-12])
+        kern.quiet_frame(
+            dc,
+            status,
+            perm,
+            0,
+            convert,
+            d.copy(),
+            ok.copy(),
+            ok,
+            sigma,
+            buf,
+            total,
+            state,
+            self._nbr,
+            self._local_limit,
+            q,
+            limits,
+            True,
+            self._trigger_limit,
+            self._idle_windows,
+        )
         kern.orthonormal(q, ok, sigma, np.zeros((k, 1)))
 
     def step_frame(self, frame: Frame, want_traction: bool, want_deflection: bool) -> Any:
@@ -385,22 +505,25 @@ class FrameFusion:
         pick = self._idle_pick(sigma)
         return None if pick is None else self._idle_solve(*pick, sigma)
 
-    def _idle_pick(self, sigma: NDArray) -> tuple[int, bool] | None:
+    def _idle_pick(self, sigma: NDArray, scanned: int = -1) -> tuple[int, bool] | None:
         """The idle look's cheap part: the window whose mean deserves a look (its length,
-        and whether the clock picked it rather than the scan), or None."""
+        and whether the clock picked it rather than the scan), or None. ``scanned``: the
+        scan's answer if the caller ran it (``scan_due``), else -1."""
         self._since_check += 1
         if self._since_check <= IDLE_HOLDOFF:
             return None
-        w = kern.idle_scan(
-            self._buf,
-            self._state,
-            self._ok,
-            sigma,
-            self._nbr,
-            self._trigger_limit,
-            self._idle_windows,
-            self._quantised,
-        )
+        w = scanned
+        if w < 0:
+            w = kern.idle_scan(
+                self._buf,
+                self._state,
+                self._ok,
+                sigma,
+                self._nbr,
+                self._trigger_limit,
+                self._idle_windows,
+                self._quantised,
+            )
         clock = w == 0
         if clock and self._since_check >= self.idle_every:
             w = min(self.frames, int(self._idle_windows[-1]))

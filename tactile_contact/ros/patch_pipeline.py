@@ -67,6 +67,10 @@ _UNUSABLE = (
 )
 
 
+#: PatchPipeline._quiet_frame's answer when the frame needs the full path.
+_FULL_PATH = object()
+
+
 class Window:
     """The last ``size`` values of a series (seconds), kept in a ring, and their percentiles.
 
@@ -210,6 +214,9 @@ class PatchPipeline:
             self.sub = node.create_subscription(TaxelArray, f"{p}/taxels", self.on_taxels, qos)
         self._subscribed: dict[Any, int] = {}
         self._subscribed_at = -math.inf
+        #: Take a batch's idle and held frames by the quiet path (_quiet_frame); False: every
+        #: frame by the full path (the same results: the tests compare the two).
+        self.quiet = True
         self.use(recon)
 
     def subscribed(self, pub: Any) -> bool:
@@ -251,6 +258,12 @@ class PatchPipeline:
         self._ids = np.asarray(recon.taxel_ids, dtype=np.int64)
         self._perm_key: bytes | None = None
         self._perm: np.ndarray | None = None
+        # The quiet path's (frame): the sensor model's constants, as its compiled conversion
+        # uses them (ReadingModel.from_delta_c), and the noise array last handed out.
+        r = recon.readings
+        self._convert = np.array([r.thickness, r._eps_area, r._rest_c, r.full_scale])
+        self._noise_seen: tuple[Any, Any] = (None, None)
+        self._checked: Any = None  # the result check_result passed last
         header = Header(frame_id=self.frame_id)
         header.stamp = self.node.get_clock().now().to_msg()
         for kind, grid in (
@@ -342,6 +355,15 @@ class PatchPipeline:
         """One frame of this patch: map, solve what is wanted, publish the per-patch outputs
         (``<patch>/contact`` always with ``contact``, else while subscribed). Returns the
         result, or None for a frame refused (bad arrays) or that could not be published."""
+        if (
+            not contact
+            and self.quiet
+            and self.recon.fusion is not None
+            and (self.recon.fusion.holding)
+        ):
+            quiet = self._quiet_frame(stamp_ns, ids, delta_c, status)
+            if quiet is not _FULL_PATH:
+                return quiet
         stats = self.stats
         stats.frames += 1
         self._last_frame = time.monotonic()
@@ -397,7 +419,74 @@ class PatchPipeline:
         if fusion is not None and fusion.pending:
             self.node.batches.defer(self)  # (run after the frame's summary is published)
         t2 = time.perf_counter()
-        out_of_range = int(np.count_nonzero(valid)) - result.taxels_used
+        used = int(np.count_nonzero(valid))
+        return self._finish(
+            stamp_ns, result, used, (t0, t1, t2), delta_c, valid, contact, want_deflection
+        )
+
+    def _quiet_frame(self, stamp_ns: int, ids: Any, delta_c: Any, status: Any) -> Any:
+        """:meth:`frame` of a batch's patch while its fusion holds a window and nothing per
+        patch is subscribed: the mapping, the conversion and the fusion's held step (with
+        its idle scan) in one compiled call (FrameFusion.step_message), the rest as the full
+        path does it. The same result, counters and noise learnt as the full path (test/
+        test_patch_quiet.py); _FULL_PATH where that path is needed (new taxel order, arrays
+        not a message's, a non-finite reading, a subscriber)."""
+        if not (
+            isinstance(ids, np.ndarray)
+            and isinstance(delta_c, np.ndarray)
+            and isinstance(status, np.ndarray)
+            and status.dtype == np.uint8
+            and delta_c.dtype.kind == "f"
+            and len(delta_c) == len(status) == len(ids)
+        ):
+            return _FULL_PATH
+        t0 = time.perf_counter()
+        if ids.dtype != np.uint16 or ids.tobytes() != self._perm_key:
+            return _FULL_PATH
+        self._recount()
+        if any(self._subscribed.values()):
+            return _FULL_PATH
+        noise = self.noise
+        seen, sigma = self._noise_seen
+        if noise.sigma is not seen:  # (the tracker hands out a new array when it learns)
+            sigma = self.recon.readings.noise(noise.sigma)
+            self._noise_seen = (noise.sigma, sigma)
+        fusion = self.recon.fusion
+        detector = self.recon.detector
+        if detector is not None:
+            detector.tolerance = noise.tolerance  # (as the full path)
+        t1 = time.perf_counter()
+        out = fusion.step_message(delta_c, status, self._perm, _UNUSABLE, self._convert, sigma)
+        if out is None:
+            return _FULL_PATH
+        result, seen_frame, used = out
+        stats = self.stats
+        stats.frames += 1
+        self._last_frame = time.monotonic()
+        if not result.in_contact:
+            noise.update(seen_frame.delta, seen_frame.ok, False)
+        if fusion.pending:
+            self.node.batches.defer(self)
+        t2 = time.perf_counter()
+        return self._finish(stamp_ns, result, used, (t0, t1, t2), None, None, False, False)
+
+    def _finish(
+        self,
+        stamp_ns: int,
+        result: Any,
+        used: int,
+        times: tuple[float, float, float],
+        delta_c: Any,
+        valid: Any,
+        contact: bool,
+        want_deflection: bool,
+    ) -> Any:
+        """A frame's counters, contact log and per-patch outputs after its solve (``used``:
+        the taxels its status and values allowed; ``times``: perf_counter at its start, after
+        the mapping, after the solve)."""
+        stats = self.stats
+        t0, t1, t2 = times
+        out_of_range = used - result.taxels_used
         if out_of_range:
             # Readings no 8-bit value gives: the driver and the bundle disagree on the
             # count→farad gain or shift. Said, counted, and the other taxels still solved.
@@ -466,12 +555,14 @@ class PatchPipeline:
     ) -> bool:
         """The per-patch outputs (those wanted); False if the result cannot be published."""
         stats = self.stats
-        try:
-            check_result(result)
-        except convert.NonFiniteError as exc:
-            stats.unpublishable += 1
-            self._fault("not published", str(exc))
-            return False
+        if result is not self._checked:  # (a held result is checked once: results are frozen)
+            try:
+                check_result(result)
+            except convert.NonFiniteError as exc:
+                stats.unpublishable += 1
+                self._fault("not published", str(exc))
+                return False
+            self._checked = result
         sub = self._subscribed
         want_images = result.traction is not None and sub[self.pub_traction] > 0
         if not want_images:
