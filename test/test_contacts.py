@@ -216,3 +216,21 @@ def test_one_taxels_offset_beside_a_contact_seeds_nothing(fitter, truth):
     d[_at(11e-3, 4.8e-3)] += 1.7 * COUNT
     fits, _ = fitter.fit(XY, d, None)
     assert len(fits) == 1
+
+
+def test_a_contact_seeded_from_the_residual_is_searched_inside_its_ring(fitter, forearm_xy):
+    # A 3 mm punch at 2.12 N 3.2 mm from its nearest taxel, 16.6 mm from a 2.55 N one (precise
+    # readings): the residual's energy peaks on a taxel of the ring it pushes down, and a
+    # search started there alone ended 4.8 mm off at half the force (1.07 N). Started also at
+    # the centre of the residual's magnitude around that taxel, it lands on the punch.
+    xy = forearm_xy
+    c1, c2 = np.array([73.8e-3, -2.2e-3]), np.array([63.1e-3, 10.5e-3])
+    d = _compression(xy, FlatPunch(1.5e-3), 2.55, c1) + _compression(
+        xy, FlatPunch(1.5e-3), 2.12, c2
+    )
+    fits, _ = fitter.fit(xy, d, None)
+    assert len(fits) == 2
+    by_y = sorted(fits, key=lambda f: f.center[1])
+    for fit, centre, force in zip(by_y, (c1, c2), (2.55, 2.12), strict=True):
+        assert np.hypot(*(np.asarray(fit.center) - centre)) < 0.5e-3
+        assert fit.force == pytest.approx(force, rel=0.1)

@@ -218,7 +218,13 @@ class ContactFitter:
             if i is None:
                 break
             rest = d - self.predicted(points, xy)
-            new = fit_round_contact(self.tables, xy, rest, xy[i], polish=False)
+            # Started at that taxel and at the centre of the residual's magnitude around it:
+            # a contact read as its bulge lies inside the ring of taxels it pushes down.
+            off = xy - xy[i]
+            around = np.hypot(off[:, 0], off[:, 1]) <= RESIDUAL_WIDTH * 2.5
+            size = np.abs(rest[around])
+            starts = np.array([xy[i], (size @ xy[around]) / size.sum()])
+            new = fit_round_contact(self.tables, xy, rest, starts, polish=False)
             if new is None:
                 break
             trial = self.least_squares([f.center for f in points] + [new.center], xy, d)
