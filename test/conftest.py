@@ -78,3 +78,31 @@ def hexagon_bundle(tmp_path_factory: pytest.TempPathFactory) -> object:
     ]
     manifest, arrays = build_patch(patch)
     return save_bundle(tmp_path_factory.mktemp("hexagon") / patch.name, manifest, arrays), patch
+
+
+@pytest.fixture(scope="module")
+def fusion_setup(hexagon_bundle, request: pytest.FixtureRequest) -> tuple:
+    """The frame-fusion tests' scene (test_temporal*.py): (bundle folder, a Reconstructor of
+    it, the fine forward model of its taxels — the independent truth —, one frame's noise [m]
+    per taxel: the converter's, the test module's ``NOISE`` [counts RMS], and the rounding's —
+    what the node's tracker learns from frames without contact)."""
+    import math
+
+    import numpy as np
+
+    from tactile_contact.inverse.reconstruction import Reconstructor
+    from tactile_contact.model.forward import ForwardModel
+
+    r = Reconstructor.from_bundle(hexagon_bundle[0])
+    p = r.params
+    truth = ForwardModel(
+        r.taxel_xy,
+        p["thickness"],
+        p["young"],
+        p["poisson"],
+        fine_cell=2.5e-4,
+        taxel_radius=p["taxel_radius"],
+    )
+    count = float(r.readings.from_counts(np.array([1.0]))[0])
+    sigma = np.full(r.n_taxels, count * math.hypot(request.module.NOISE, 12**-0.5))
+    return hexagon_bundle[0], r, truth, sigma

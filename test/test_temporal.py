@@ -20,29 +20,15 @@ from tactile_contact.inverse import _temporal_kernels as kern
 from tactile_contact.inverse.reconstruction import Reconstructor
 from tactile_contact.inverse.round_contact import FAMILIES, RoundFit
 from tactile_contact.inverse.temporal import FrameFusion, round_jacobian
-from tactile_contact.model.forward import ForwardModel
 from tactile_contact.model.indenters import FlatPunch, HertzSphere
 
 NOISE = 0.5  # converter noise [counts RMS]
 
 
 @pytest.fixture(scope="module")
-def setup(hexagon_bundle):
-    r = Reconstructor.from_bundle(hexagon_bundle[0])
-    p = r.params
-    truth = ForwardModel(
-        r.taxel_xy,
-        p["thickness"],
-        p["young"],
-        p["poisson"],
-        fine_cell=2.5e-4,
-        taxel_radius=p["taxel_radius"],
-    )
-    # One frame's noise [m]: the converter's and the rounding's (what the node's tracker
-    # learns from frames without contact).
-    count = float(r.readings.from_counts(np.array([1.0]))[0])
-    sigma = np.full(r.n_taxels, count * math.hypot(NOISE, 12**-0.5))
-    return hexagon_bundle[0], r, truth, sigma
+def setup(fusion_setup):
+    """The hexagon, its fine-model truth and one frame's noise (test/conftest.py)."""
+    return fusion_setup
 
 
 def counts(r, delta: np.ndarray, rng, n: int) -> np.ndarray:

@@ -10,34 +10,20 @@ with converter noise (as test_temporal.py).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
 from tactile_contact.inverse.reconstruction import Reconstructor
 from tactile_contact.inverse.temporal import DEFER_FROM
-from tactile_contact.model.forward import ForwardModel
 from tactile_contact.model.indenters import HertzSphere
 
 NOISE = 0.5  # converter noise [counts RMS]
 
 
 @pytest.fixture(scope="module")
-def setup(hexagon_bundle):
-    r = Reconstructor.from_bundle(hexagon_bundle[0])
-    p = r.params
-    truth = ForwardModel(
-        r.taxel_xy,
-        p["thickness"],
-        p["young"],
-        p["poisson"],
-        fine_cell=2.5e-4,
-        taxel_radius=p["taxel_radius"],
-    )
-    count = float(r.readings.from_counts(np.array([1.0]))[0])
-    sigma = np.full(r.n_taxels, count * math.hypot(NOISE, 12**-0.5))
-    return hexagon_bundle[0], r, truth, sigma
+def setup(fusion_setup):
+    """The hexagon, its fine-model truth and one frame's noise (test/conftest.py)."""
+    return fusion_setup
 
 
 def _frames(r, truth, rng) -> list[np.ndarray]:
