@@ -5,13 +5,14 @@ No DDS and no executor: a real ContactReconstructionNode (``input: batches``, ev
 config/icub_robot.yaml, bundles in out/robot/bundles) is handed bench_workers' readings of scene
 (b) (out/bench_workers/readings_icub_robot_typical_*.pkl: run bench_workers' robot phase once
 to make them), one TaxelBatch a bus, seven a period, back to back; its diagnostics steps run
-at their timer's rate (one per period × patches + 1 per second). Timed, after
-``--skip`` periods: each patch-frame (``PatchPipeline.frame``) by patch and by what the fusion
-did with it (solved on its own, fused, held), each row's time from its batch's start until its
-ContactArray is published, each batch's whole callback (with the re-solves the fusion deferred
-until after the publish), each diagnostics step, the garbage collector's pauses (the node's
-objects frozen after start-up, as run_node does), and the idle patches' looks into their
-window means (``FrameFusion._idle_solve``: on the clock and screened, or picked by the scan).
+at their timer's rate (one per period × patches + 1 per second). Timed, after ``--skip``
+periods: each patch-frame (``PatchPipeline.frame``) by patch and by what the fusion did with
+it (solved on its own, fused, held: an idle patch's or a held press's), each row's time from
+its batch's start until its ContactArray is published, each batch's whole callback (with the
+re-solves the fusion deferred until after the publish), each diagnostics step, the garbage
+collector's pauses (the node's objects frozen after start-up, as run_node does), and the idle
+patches' looks into their window means (``FrameFusion._idle_solve``: on the clock and
+screened, or picked by the scan).
 
     python bench/load_tail.py [--periods 600] [--skip 150] [--tree DIR]
 
@@ -87,15 +88,21 @@ def main() -> int:
     period = [0]
     frames: list[tuple[int, str, str, float]] = []  # (period, patch, fusion's path, s)
     looks: list[tuple[bool, bool, float]] = []  # (clock, screened out, s)
+    kinds: dict[str, list[float]] = collections.defaultdict(list)  # what the frame was → s
     for pipe in node.pipelines.values():
         frame = pipe.frame
 
         def timed(*a, _frame=frame, _pipe=pipe, **kw):  # type: ignore[no-untyped-def]
             t = time.perf_counter()
             out = _frame(*a, **kw)
+            dt = time.perf_counter() - t
             fusion = _pipe.recon.fusion
             last = fusion.last if fusion is not None else ""
-            frames.append((period[0], _pipe.name, last, time.perf_counter() - t))
+            frames.append((period[0], _pipe.name, last, dt))
+            if last == "held" and out is not None:  # (republished: idle, or a press held)
+                last = "held, in contact" if out.in_contact else "held, idle"
+            if period[0] >= args.skip:
+                kinds[last].append(dt)
             return out
 
         pipe.frame = timed
@@ -172,6 +179,12 @@ def main() -> int:
     print(f"{args.periods - skip} periods measured, {len(kept)} patch-frames")
     print(f"patch-frame (PatchPipeline.frame): {ms([f[3] for f in kept])}")
     print(f"a period's patch-frames together: {ms(list(work.values()))}")
+    for kind in sorted(kinds):
+        v = np.asarray(kinds[kind]) * 1e6
+        print(
+            f"  a patch-frame {kind}: n {v.size}, p50 {np.median(v):.1f}, p90 "
+            f"{np.percentile(v, 90):.1f}, p99 {np.percentile(v, 99):.1f}, max {v.max():.0f} µs"
+        )
     rows_after = [dt for j, dt, n in published if j >= skip for _ in range(n)]
     print(f"a row, its batch's start → its ContactArray published: {ms(rows_after)}")
     print(

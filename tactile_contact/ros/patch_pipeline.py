@@ -105,6 +105,7 @@ class PatchStats:
     """Counters and timings of one patch since start (timings keep the last 1000 frames)."""
 
     frames: int = 0
+    quiet: int = 0  # frames taken by the quiet path (PatchPipeline._quiet_frame)
     solved: int = 0
     constrained: int = 0
     skipped_idle: int = 0
@@ -462,6 +463,7 @@ class PatchPipeline:
         result, seen_frame, used = out
         stats = self.stats
         stats.frames += 1
+        stats.quiet += 1
         self._last_frame = time.monotonic()
         if not result.in_contact:
             noise.update(seen_frame.delta, seen_frame.ok, False)
@@ -670,6 +672,7 @@ class PatchPipeline:
         values: dict[str, object] = {
             "bundle": str(self.bundle),
             "frames": s.frames,
+            "frames_quiet": s.quiet,
             "solved": s.solved,
             "constrained_solves": s.constrained,
             "skipped_idle": s.skipped_idle,
