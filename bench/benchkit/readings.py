@@ -83,15 +83,27 @@ class IdleSkin:
     baseline. A taxel resting near half a count flips between two values: up to 0.5 count RMS.
     """
 
-    def __init__(self, k: int, rng: np.random.Generator, skin_frames: int) -> None:
+    def __init__(
+        self, k: int, rng: np.random.Generator, skin_frames: int, drift_lag: float = 0.0
+    ) -> None:
+        """``drift_lag``: RMS [counts] over taxels of how far the tracked baseline lags a
+        steady drift (each taxel drifts at a rate drawn so that its lag, rate × τ, has this
+        RMS); 0: no drift."""
         self.k, self.rng, self.skin_frames = k, rng, skin_frames
         self.alpha = 1.0 - np.exp(-1.0 / RATE_HZ / DRIFT_TAU_S)
+        self.drift_lag = drift_lag
         self.left = 0
 
     def _new_skin(self) -> None:
         self.rest = self.rng.uniform(0.0, 1.0, self.k)
         cal = np.rint(self.rest + self.rng.normal(0.0, COUNT_NOISE, (CALIBRATION_SAMPLES, self.k)))
         self.baseline = cal.mean(axis=0)
+        # Per frame [counts]; the rest level moves by it every frame. (No draw without drift:
+        # the other benches' idle skins stay the same draws.)
+        self.rate = np.zeros(self.k)
+        if self.drift_lag:
+            self.rate = self.rng.normal(0.0, self.drift_lag / DRIFT_TAU_S / RATE_HZ, self.k)
+        self.frame = 0
         self.left = self.skin_frames
         self.fresh = True
 
@@ -101,7 +113,9 @@ class IdleSkin:
         if self.left == 0:
             self._new_skin()
         n = min(n, self.left)
-        values = np.rint(self.rest + self.rng.normal(0.0, COUNT_NOISE, (n, self.k)))
+        t = self.frame + np.arange(n)[:, None]
+        self.frame += n
+        values = np.rint(self.rest + self.rate * t + self.rng.normal(0.0, COUNT_NOISE, (n, self.k)))
         a = self.alpha
         zi = (1.0 - a) * self.baseline
         tracked, _ = scipy.signal.lfilter([a], [1.0, -(1.0 - a)], values, axis=0, zi=zi[None, :])
