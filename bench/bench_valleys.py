@@ -44,6 +44,13 @@ INDENTERS = {
 FORCE_TOL, COP_TOL = 0.05, 0.5e-3
 #: Presses lie at least this far [m] inside the hull of the taxel centres.
 MARGIN = 1.5e-3
+#: Places by the distance to the nearest taxel [mm] (the taxels are 5.5 mm apart: ≈ 3.2 mm is
+#: the middle of three).
+PLACES = (
+    ("over a taxel (< 1 mm)", 0.0, 1.0),
+    ("1-2.5 mm off a taxel", 1.0, 2.5),
+    ("between (>= 2.5 mm)", 2.5, np.inf),
+)
 
 
 def matched(folder: Path) -> Reconstructor:
@@ -119,9 +126,10 @@ def main() -> None:
             f"|force error| > {FORCE_TOL:.0%} or CoP > {COP_TOL * 1e3:.1f} mm"
         )
         say()
-        say("seed   presses  off  |err| median  p99    max  | CoP median   max mm | time s")
+        say("seed   presses  off  |err| median  p90   p99    max  | CoP median  p99   max mm | s")
         total_off = total = 0
         offs = []
+        every: list[dict] = []
         for s in seeds:
             t0 = time.perf_counter()
             rows = run_seed(recon, truth, s, args.presses)
@@ -134,10 +142,27 @@ def main() -> None:
             offs += [(s, r) for r in bad]
             say(
                 f"{s:<6d} {len(rows):7d} {len(bad):4d}  {np.median(e):11.2f} "
-                f"{np.percentile(e, 99):5.2f} {e.max():6.2f}  | {np.median(c):10.3f} "
-                f"{c.max():7.3f} | {dt:6.1f}"
+                f"{np.percentile(e, 90):5.2f} {np.percentile(e, 99):5.2f} {e.max():6.2f}  | "
+                f"{np.median(c):10.3f} {np.percentile(c, 99):5.3f} {c.max():7.3f} | {dt:3.0f}"
             )
+            every += rows
         say(f"all    {total:7d} {total_off:4d}")
+        say()
+        say("per place (distance to the nearest taxel), every seed: |force error| % median / p90 /")
+        say("p99 / worst, CoP mm median / worst, presses off")
+        near = np.array([r["nearest_taxel"] for r in every]) * 1e3
+        for label, lo, hi in PLACES:
+            sel = [r for r, n in zip(every, near, strict=True) if lo <= n < hi]
+            if not sel:
+                continue
+            e = np.abs([r["error"] for r in sel]) * 100
+            c = np.array([r["cop"] for r in sel]) * 1e3
+            n_off = sum(abs(r["error"]) > FORCE_TOL or r["cop"] > COP_TOL for r in sel)
+            say(
+                f"  {label:<22s} {len(sel):4d} | {np.median(e):5.2f} / {np.percentile(e, 90):5.2f}"
+                f" / {np.percentile(e, 99):5.2f} / {e.max():6.2f} | {np.median(c):5.3f} / "
+                f"{c.max():5.3f} | off {n_off}"
+            )
         say()
         if offs:
             say("presses off (seed: indenter, force, centre mm, nearest taxel mm, error, CoP mm):")
