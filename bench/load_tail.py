@@ -7,7 +7,8 @@ config/icub_robot.yaml, bundles in out/robot/bundles) is handed bench_workers' r
 to make them), one TaxelBatch a bus, seven a period, back to back; its diagnostics steps run
 at their timer's rate (one per period × patches + 1 per second). Timed, after ``--skip``
 periods: each patch-frame (``PatchPipeline.frame``) by patch and by what the fusion did with
-it (solved on its own, fused, held: an idle patch's or a held press's), each row's time from
+it (solved on its own, fused, held: an idle patch's or a held press's; wall time and the
+thread's CPU time, which a loaded machine's preemption does not add to), each row's time from
 its batch's start until its ContactArray is published, each batch's whole callback (with the
 re-solves the fusion deferred until after the publish), each diagnostics step, the garbage
 collector's pauses (the node's objects frozen after start-up, as run_node does), and the idle
@@ -89,13 +90,14 @@ def main() -> int:
     frames: list[tuple[int, str, str, float]] = []  # (period, patch, fusion's path, s)
     looks: list[tuple[bool, bool, float]] = []  # (clock, screened out, s)
     kinds: dict[str, list[float]] = collections.defaultdict(list)  # what the frame was → s
+    kinds_cpu: dict[str, list[float]] = collections.defaultdict(list)  # → the thread's CPU s
     for pipe in node.pipelines.values():
         frame = pipe.frame
 
         def timed(*a, _frame=frame, _pipe=pipe, **kw):  # type: ignore[no-untyped-def]
-            t = time.perf_counter()
+            c, t = time.thread_time(), time.perf_counter()
             out = _frame(*a, **kw)
-            dt = time.perf_counter() - t
+            dt, cpu = time.perf_counter() - t, time.thread_time() - c
             fusion = _pipe.recon.fusion
             last = fusion.last if fusion is not None else ""
             frames.append((period[0], _pipe.name, last, dt))
@@ -103,6 +105,7 @@ def main() -> int:
                 last = "held, in contact" if out.in_contact else "held, idle"
             if period[0] >= args.skip:
                 kinds[last].append(dt)
+                kinds_cpu[last].append(cpu)
             return out
 
         pipe.frame = timed
@@ -180,10 +183,12 @@ def main() -> int:
     print(f"patch-frame (PatchPipeline.frame): {ms([f[3] for f in kept])}")
     print(f"a period's patch-frames together: {ms(list(work.values()))}")
     for kind in sorted(kinds):
-        v = np.asarray(kinds[kind]) * 1e6
+        v, c = np.asarray(kinds[kind]) * 1e6, np.asarray(kinds_cpu[kind]) * 1e6
         print(
             f"  a patch-frame {kind}: n {v.size}, p50 {np.median(v):.1f}, p90 "
-            f"{np.percentile(v, 90):.1f}, p99 {np.percentile(v, 99):.1f}, max {v.max():.0f} µs"
+            f"{np.percentile(v, 90):.1f}, p99 {np.percentile(v, 99):.1f}, max {v.max():.0f} µs;"
+            f" its CPU time mean {c.mean():.1f}, p50 {np.median(c):.1f}, p99 "
+            f"{np.percentile(c, 99):.1f} µs"
         )
     rows_after = [dt for j, dt, n in published if j >= skip for _ in range(n)]
     print(f"a row, its batch's start → its ContactArray published: {ms(rows_after)}")
