@@ -69,6 +69,8 @@ _UNUSABLE = (
 
 #: PatchPipeline._quiet_frame's answer when the frame needs the full path.
 _FULL_PATH = object()
+#: ΔC arrays the quiet path takes (a message's float32; float64 from a caller's own arrays).
+_QUIET_FLOATS = (np.dtype(np.float32), np.dtype(np.float64))
 
 
 class Window:
@@ -437,7 +439,7 @@ class PatchPipeline:
             and isinstance(delta_c, np.ndarray)
             and isinstance(status, np.ndarray)
             and status.dtype == np.uint8
-            and delta_c.dtype.kind == "f"
+            and delta_c.dtype in _QUIET_FLOATS
             and len(delta_c) == len(status) == len(ids)
         ):
             return _FULL_PATH
