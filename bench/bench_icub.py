@@ -81,6 +81,8 @@ MATCH = 6e-3
 #: A contact is clear when, alone, it moves some taxel by at least this many 8-bit counts.
 CLEAR_COUNTS = 5.0
 TARGETS = {"forearm build [s]": 60.0, "forearm frame p50 [ms]": 2.0}
+#: Bands of a contact's signal alone [counts²] the found contacts are counted in.
+SIGNAL_BANDS = ((0.0, 3.0), (3.0, 6.0), (6.0, 10.0), (10.0, np.inf))
 #: Driver readings: converter noise [counts RMS], samples of the driver's first baseline, and
 #: the spread [counts RMS] of what the baseline tracker leaves behind (drift it lags).
 DRIVER_NOISE = 0.3
@@ -292,6 +294,9 @@ def main() -> None:
                 # Clear: every contact alone moves some taxel by CLEAR_COUNTS or more.
                 alone = np.abs(lay.to_delta_c(each)).max(axis=1) / lay.lsb
                 m = match(list(res.contacts), s, bool(alone.min() >= CLEAR_COUNTS))
+                # Each contact's signal alone: Σ of its squared readings [counts²].
+                signal = np.sum(np.square(lay.to_delta_c(each) / lay.lsb), axis=1)
+                m["signal"] = signal
                 tables.setdefault(f"{label}|{n}|{s['family']}", []).append(m)
                 tables.setdefault(f"{label}|{n}|all", []).append(m)
                 if m["clear"]:
@@ -301,6 +306,7 @@ def main() -> None:
                 drv = np.random.default_rng(_seed(label, n, "driver", len(frames[f"{label}|{n}"])))
                 res = recon.solve(driver_readings(lay, each.sum(axis=0), drv))
                 m = match(list(res.contacts), s, m["clear"])
+                m["signal"] = signal
                 tables.setdefault(f"{label}|{n}|all, driver readings", []).append(m)
             print(f"  {label}: {n} contact(s) done", file=sys.stderr, flush=True)
         # Idle frames (nothing pressed: 8-bit readings of the converter noise alone), timed
@@ -321,6 +327,28 @@ def main() -> None:
     head = ["patch", "contacts", "indenters", "scenes", "separated", "force p50", "force p90",
             "force worst", "centre p50", "centre worst", "missed / extra"]  # fmt: skip
     for line in md_table(head, body):
+        rep(line)
+    rep("")
+    rep(
+        "contacts found by their signal alone (Σ of the contact's squared readings, counts²; "
+        "one count/√6 of rounding makes 6 counts² ≈ 36 σ², z ≈ 6): found / all, and the "
+        "strongest contact missed"
+    )
+    body = []
+    for key, rows in tables.items():
+        label, n, fam = key.split("|")
+        if fam not in ("all", "all, driver readings"):
+            continue
+        sig = np.concatenate([r["signal"] for r in rows])
+        hit = np.concatenate([np.isfinite(r["force"]) for r in rows])
+        cells = [label, n, fam]
+        for lo, hi in SIGNAL_BANDS:
+            band = (sig >= lo) & (sig < hi)
+            cells.append(f"{hit[band].sum()}/{band.sum()}")
+        cells.append(f"{sig[~hit].max():.1f}" if (~hit).any() else "-")
+        body.append(cells)
+    bands = [f"{lo:g}–{hi:g}" if np.isfinite(hi) else f"≥ {lo:g}" for lo, hi in SIGNAL_BANDS]
+    for line in md_table(["patch", "contacts", "readings", *bands, "largest missed"], body):
         rep(line)
 
     # -- frame time --

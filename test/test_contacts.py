@@ -234,3 +234,36 @@ def test_a_contact_seeded_from_the_residual_is_searched_inside_its_ring(fitter, 
     for fit, centre, force in zip(by_y, (c1, c2), (2.55, 2.12), strict=True):
         assert np.hypot(*(np.asarray(fit.center) - centre)) < 0.5e-3
         assert fit.force == pytest.approx(force, rel=0.1)
+
+
+def test_the_evidence_noise_is_not_made_of_the_contacts_not_fitted_yet(fitter, truth):
+    # One sphere fitted, two 1 N contacts among the taxels beyond its reach, 0.6 count of
+    # Gaussian noise: the far taxels' RMS residual holds those contacts (1.8 σ on average),
+    # and the seeds and evidence margin scaled by it hid them (with the driver's baseline
+    # offsets, three contacts measured 1.67 σ and were reported as one). The level weighed in
+    # leaves out the largest fifth: near σ, and the same as the RMS on noise alone.
+    from tactile_contact.inverse.round_contact import fit_round_contact
+
+    estimate = ContactFitter(
+        fitter.tables, fitter.count_sigma, fitter.contact_threshold, fitter.sigma,
+        estimate_noise=True,
+    )  # fmt: skip
+    c1 = XY[_at(-16.5e-3)]
+    main = truth.compression(HertzSphere(6e-3), 2.5, c1)
+    others = truth.compression(HertzSphere(6e-3), 1.0, XY[_at(11e-3, 9.5e-3)])
+    others += truth.compression(FlatPunch(6e-3), 1.0, XY[_at(11e-3, -9.5e-3)])
+    sigma = 0.6 * COUNT
+    rng = np.random.default_rng(1)
+    full, trimmed, alone_full, alone_trimmed = [], [], [], []
+    for _ in range(20):
+        for d, a, b in (
+            (main + others + rng.normal(0.0, sigma, len(XY)), full, trimmed),
+            (main + rng.normal(0.0, sigma, len(XY)), alone_full, alone_trimmed),
+        ):
+            single = fit_round_contact(estimate.tables, XY, d, c1[None, :])
+            a.append(estimate.far_noise([single], XY, d) / sigma)
+            b.append(estimate.far_level(single, XY, d) / sigma)
+    assert np.mean(full) > 1.5
+    assert 0.85 < np.mean(trimmed) < 1.35
+    assert 0.85 < np.mean(alone_trimmed) < 1.15
+    assert np.all(np.asarray(alone_trimmed) <= np.asarray(alone_full) + 1e-15)

@@ -139,7 +139,7 @@ class ContactFitter:
         if self.sigma is not None:
             level = max(level, float(np.sqrt(np.mean(np.square(self.sigma)))))
         if self.estimate_noise and single is not None:
-            level = max(level, self.far_noise([single], xy, d) or 0.0)
+            level = max(level, self.far_level(single, xy, d) or 0.0)
         # Separate contacts must lower the squared residual by the evidence margin: a single
         # contact already within it leaves nothing to win (and skips 4-5 more fits).
         margin = MULTI_CONTACT_EVIDENCE * level**2
@@ -315,6 +315,22 @@ class ContactFitter:
             return min(rms, ROBUST_CAP * 1.4826 * mad)
         half = 0.5 * math.sqrt(6.0) * self.count_sigma  # half a count [m]
         return min(rms, ROBUST_CAP * robust_scale(res, half))
+
+    def far_level(self, fit: RoundFit, xy: NDArray, d: NDArray) -> float | None:
+        """The readings' noise [m] that separate contacts are weighed in, measured on the
+        taxels farther than REACH from the single contact ``fit``: :meth:`far_noise`, but at
+        most the RMS of the smallest four fifths of their residuals scaled to a Gaussian's σ
+        (E[x² | |x| < q₀.₈] = 0.4377 σ²) — the other contacts, not fitted yet, read among
+        those taxels (with the driver's baseline offsets, three contacts measured 1.67 σ
+        where the readings held 1.3 σ, and hid each other)."""
+        full = self.far_noise([fit], xy, d)
+        if full is None:
+            return None
+        dx, dy = xy[:, 0] - fit.center[0], xy[:, 1] - fit.center[1]
+        far = dx * dx + dy * dy > REACH * REACH
+        res = np.abs(self.tables.predict(fit, xy[far]) - d[far])
+        keep = np.partition(res, int(0.8 * len(res)) - 1)[: int(0.8 * len(res))]
+        return min(full, math.sqrt(float(keep @ keep) / len(keep) / 0.4377))
 
     def _misfit(self, fit: RoundFit, xy: NDArray, d: NDArray) -> float:
         """Σ ((prediction − reading)/σ)² of ``fit`` over every taxel (σ: ``sigma``, or 1)."""
