@@ -205,11 +205,11 @@ class ContactFitter:
         peak: int | None = None,
     ) -> list[RoundFit]:
         """``points`` (least-squares contacts) and, one at a time up to ``max_contacts``,
-        a contact seeded at the taxel the others explain least (at least RESIDUAL_APART
-        from each, reading above RESIDUAL_SEED_LEVEL contact thresholds times ``level``/σ
-        there), kept when the contacts refitted together lower the squared residual by more
-        than ``margin`` [m²] (against ``r2`` [m²], by default the squared residual of
-        ``points``); ``peak``: the first seed's taxel when already found for ``points``."""
+        a contact seeded at the taxel around which the others leave the most residual energy
+        (:meth:`residual_peak`), kept when the contacts refitted together lower the squared
+        residual by more than ``margin`` [m²] (against ``r2`` [m²], by default the squared
+        residual of ``points``); ``peak``: the first seed's taxel when already found for
+        ``points``."""
         if r2 is None:
             r2 = float(np.sum(np.square(d - self.predicted(points, xy))))
         while len(points) < self.max_contacts:
@@ -223,7 +223,9 @@ class ContactFitter:
             off = xy - xy[i]
             around = np.hypot(off[:, 0], off[:, 1]) <= RESIDUAL_WIDTH * 2.5
             size = np.abs(rest[around])
-            starts = np.array([xy[i], (size @ xy[around]) / size.sum()])
+            starts = xy[i][None, :]
+            if size.sum() > 0.0:
+                starts = np.array([xy[i], (size @ xy[around]) / size.sum()])
             new = fit_round_contact(self.tables, xy, rest, starts, polish=False)
             if new is None:
                 break
