@@ -366,8 +366,6 @@ def hop_round_contact(
     (bench_valleys, seed 7: 2.51 N reported at −45 %, 1.2 mm off; 2.36 N at −10 %, 2.6 mm);
     the lattice's 324 more starts run only in this branch (readings the search left
     unexplained) and only for broad fits."""
-    from tactile_contact.inverse._round_kernels import fit_from
-
     xy = np.asarray(taxel_xy, dtype=np.float64)
     d = np.asarray(delta, dtype=np.float64)
     c = np.asarray(fit.center, dtype=np.float64)
@@ -375,7 +373,6 @@ def hop_round_contact(
     if found is None:
         return None
     local, w2 = found
-    t0, dt = tables.log_grid
     starts = np.array(
         [
             (c[0] + dx, c[1] + dy, math.log(fit.radius * k), fam)
@@ -386,6 +383,24 @@ def hop_round_contact(
     )
     if fit.radius >= NEEDLE_RADIUS:
         starts = np.concatenate((starts, _needle_starts(c, fit.radius)))
+    return _fit_from_starts(tables, xy, d, local, w2, starts, THOROUGH_KEEP)
+
+
+def _fit_from_starts(
+    tables: RoundTables,
+    xy: NDArray,
+    d: NDArray,
+    local: NDArray,
+    w2: NDArray,
+    starts: NDArray,
+    keep: int,
+) -> RoundFit | None:
+    """The compiled search from ``starts`` (x, y, log radius, family) over the taxels
+    ``local`` with weights ``w2``, the ``keep`` best refined to convergence, as a RoundFit
+    with its residual over every taxel xy [m] (readings d [m])."""
+    from tactile_contact.inverse._round_kernels import fit_from
+
+    t0, dt = tables.log_grid
     best = fit_from(
         tables.table,
         t0,
@@ -396,7 +411,7 @@ def hop_round_contact(
         np.ascontiguousarray(w2),
         starts,
         FIT_PRE_ITERATIONS,
-        THOROUGH_KEEP,
+        keep,
         FIT_ITERATIONS,
     )
     return _round_fit(tables, xy, d, best)
@@ -433,8 +448,6 @@ def rescan_round_contact(
     tabulated radius its best lattice centre, can end on a broad punch where a sphere through
     the same centre explains the readings better (a 12 mm sphere between three taxels at
     1.8 N, 1 % noise, fitted as a 6.1 mm punch at −33 %, 28 σ² above the sphere's valley)."""
-    from tactile_contact.inverse._round_kernels import fit_from
-
     xy = np.asarray(taxel_xy, dtype=np.float64)
     d = np.asarray(delta, dtype=np.float64)
     c = np.asarray(fit.center, dtype=np.float64)
@@ -442,24 +455,10 @@ def rescan_round_contact(
     if found is None:
         return None
     local, w2 = found
-    t0, dt = tables.log_grid
     starts = np.array(
         [(c[0], c[1], math.log(a), fam) for a in RESCAN_RADII for fam in range(len(FAMILIES))]
     )
-    best = fit_from(
-        tables.table,
-        t0,
-        dt,
-        tables.step,
-        np.ascontiguousarray(xy[local]),
-        np.ascontiguousarray(d[local]),
-        np.ascontiguousarray(w2),
-        starts,
-        FIT_PRE_ITERATIONS,
-        FIT_KEEP,
-        FIT_ITERATIONS,
-    )
-    return _round_fit(tables, xy, d, best)
+    return _fit_from_starts(tables, xy, d, local, w2, starts, FIT_KEEP)
 
 
 def _needle_starts(c: NDArray, radius: float) -> NDArray[np.float64]:
