@@ -106,3 +106,24 @@ def fusion_setup(hexagon_bundle, request: pytest.FixtureRequest) -> tuple:
     count = float(r.readings.from_counts(np.array([1.0]))[0])
     sigma = np.full(r.n_taxels, count * math.hypot(request.module.NOISE, 12**-0.5))
     return hexagon_bundle[0], r, truth, sigma
+
+
+@pytest.fixture(scope="session")
+def point_taxel_bundle(tmp_path_factory: pytest.TempPathFactory) -> object:
+    """The default patch with ``footprint_radius: 0`` (point-value taxels, the response
+    calibration finds for a point-taxel truth), built once per test session: its folder
+    (test_valleys*.py)."""
+    import copy
+    from pathlib import Path
+
+    import yaml
+
+    from tactile_contact.model.layout import parse_layout
+    from tactile_contact.offline.build import build_patch
+    from tactile_contact.offline.bundle import save_bundle
+
+    path = Path(__file__).resolve().parents[1] / "config" / "hexagon_patch.yaml"
+    doc = copy.deepcopy(yaml.safe_load(path.read_text()))
+    doc["patches"][0]["model"]["footprint_radius"] = 0.0
+    manifest, arrays = build_patch(parse_layout(doc).patches[0])
+    return save_bundle(tmp_path_factory.mktemp("pt") / "p", manifest, arrays)

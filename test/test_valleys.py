@@ -14,22 +14,13 @@ from every taxel, where the traction grid has no cells.
 
 from __future__ import annotations
 
-import copy
-from pathlib import Path
-
 import numpy as np
 import pytest
-import yaml
 
 from tactile_contact.inverse.reconstruction import Reconstructor
 from tactile_contact.model.forward import ForwardModel
 from tactile_contact.model.indenters import FlatPunch, HertzSphere
-from tactile_contact.model.layout import parse_layout
-from tactile_contact.offline.build import build_patch
-from tactile_contact.offline.bundle import save_bundle
 
-ROOT = Path(__file__).resolve().parents[1]
-DOC = yaml.safe_load((ROOT / "config" / "hexagon_patch.yaml").read_text())
 INDENTERS = (HertzSphere(6e-3), HertzSphere(3e-3), FlatPunch(6e-3), FlatPunch(1.5e-3))
 #: Presses drawn (the issue's check draws ≥ 200; bench/bench_valleys.py runs those).
 N_PRESSES = 40
@@ -38,11 +29,8 @@ pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
-def recon(tmp_path_factory) -> Reconstructor:
-    doc = copy.deepcopy(DOC)
-    doc["patches"][0]["model"]["footprint_radius"] = 0.0
-    m, a = build_patch(parse_layout(doc).patches[0])
-    return Reconstructor.from_bundle(save_bundle(tmp_path_factory.mktemp("pt") / "p", m, a))
+def recon(point_taxel_bundle) -> Reconstructor:
+    return Reconstructor.from_bundle(point_taxel_bundle)
 
 
 @pytest.fixture(scope="module")
