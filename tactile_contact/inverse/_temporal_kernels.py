@@ -164,6 +164,84 @@ def idle_scan(buf, state, ok, sigma, nbr, limit, windows, quantised):  # pragma:
 
 
 @numba.njit(**_JIT)
+def window_sums(buf, state, windows, wsum):  # pragma: no cover - compiled
+    """``wsum[j]`` (K,): the sum of the newest min(windows[j], frames held) frames of the ring
+    ``buf``, added newest first (the sums idle_scan used to make every frame, bit for bit)."""
+    h, k = buf.shape
+    n = int(state[N])
+    head = int(state[HEAD])
+    acc = np.zeros(k)
+    done = 0
+    for wi in range(windows.shape[0]):
+        w = min(int(windows[wi]), n)
+        while done < w:
+            row = (head - 1 - done) % h
+            for i in range(k):
+                acc[i] += buf[row, i]
+            done += 1
+        for i in range(k):
+            wsum[wi, i] = acc[i]
+
+
+@numba.njit(**_JIT)
+def held_step_sums(
+    d, ok, window_ok, sigma, buf, total, state, nbr, local_limit, q, limits, wsum, windows, spare
+):  # pragma: no cover - compiled
+    """:func:`held_step`, and when the frame joins the window, the idle windows' sums
+    ``wsum`` (:func:`window_sums`) kept: each gains the frame and loses the one that leaves
+    its newest ``windows[j]``. Why: the idle scan read up to 32 rows of the window every idle
+    frame, and with a robot's 34 windows through the cache that was most of a quiet frame's
+    compiled time. ``spare`` (K,): scratch for the row the frame overwrites."""
+    h, k = buf.shape
+    n = int(state[N])
+    row = int(state[HEAD])
+    if windows.shape[0] and windows[windows.shape[0] - 1] >= h:
+        for i in range(k):
+            spare[i] = buf[row, i]
+    code = held_step(d, ok, window_ok, sigma, buf, total, state, nbr, local_limit, q, limits)
+    if code == 0:
+        for wi in range(windows.shape[0]):
+            w = int(windows[wi])
+            if n >= w:
+                old = (row - w) % h
+                for i in range(k):
+                    leaving = spare[i] if old == row else buf[old, i]
+                    wsum[wi, i] += buf[row, i] - leaving
+            else:
+                for i in range(k):
+                    wsum[wi, i] += buf[row, i]
+    return code
+
+
+@numba.njit(**_JIT)
+def idle_scan_sums(wsum, state, ok, sigma, nbr, limit, windows, quantised):  # pragma: no cover
+    """:func:`idle_scan` on the windows' kept sums ``wsum`` (:func:`held_step_sums`) instead
+    of the ring's rows: the same statistics (up to the sums' rounding), the same answer."""
+    k = wsum.shape[1]
+    n = int(state[N])
+    x = np.zeros(k + 1)
+    best, best_w = 1.0, 0
+    s2 = max(state[SCALE2], 1e-12)
+    for wi in range(windows.shape[0]):
+        w = int(windows[wi])
+        if w > n:
+            break
+        eff = w / s2 if not quantised else 1.0 / (max(1.0 - s2, 0.0) + s2 / w)
+        g = math.sqrt(eff)
+        for i in range(k):
+            x[i] = wsum[wi, i] / w * g / sigma[i] if ok[i] else 0.0
+        for j in range(k):
+            s = 0.0
+            for c in range(nbr.shape[1]):
+                v = x[nbr[j, c]]
+                s += v * v
+            r = s / limit[j]
+            if r > best:
+                best, best_w = r, w
+    return best_w
+
+
+@numba.njit(**_JIT)
 def orthonormal(a, ok, sigma, q):  # pragma: no cover - compiled
     """The columns of ``a`` (K, m) over ``sigma`` (K,) at the ``ok`` taxels (0 elsewhere),
     orthonormalised into ``q`` (K, m) by modified Gram–Schmidt; columns that add less than
@@ -251,6 +329,8 @@ def quiet_frame(
     scan,
     trigger_limit,
     windows,
+    wsum,
+    spare,
 ):  # pragma: no cover - compiled
     """A batch's patch-frame taken straight to the fusion's held step, in one call (what an
     idle or held patch-frame costs: contact_reconstruction's PatchPipeline).
@@ -264,8 +344,8 @@ def quiet_frame(
         delta, ok: (K,) filled with the frame's δ [m] and taxels used, as
             ReadingModel.from_delta_c gives them for ΔC where the status allows, 0 elsewhere.
         window_ok … limits: held_step's arguments.
-        scan: run idle_scan (quantised readings) when nothing changed; trigger_limit,
-            windows: its arguments.
+        scan: run the idle scan (quantised readings) when nothing changed; trigger_limit,
+            windows: its arguments; wsum, spare: held_step_sums' (the windows' sums kept).
 
     Returns:
         (code, window, valid): code -1 if a reading is not finite (nothing converted, the
@@ -286,8 +366,23 @@ def quiet_frame(
         good = good and x > -rest_c and abs(x) <= full_scale
         ok[i] = good
         delta[i] = x * (h * h) / (eps_area + x * h) if good else 0.0
-    code = held_step(delta, ok, window_ok, sigma, buf, total, state, nbr, local_limit, q, limits)
+    code = held_step_sums(
+        delta,
+        ok,
+        window_ok,
+        sigma,
+        buf,
+        total,
+        state,
+        nbr,
+        local_limit,
+        q,
+        limits,
+        wsum,
+        windows,
+        spare,
+    )
     w = -1
     if code == 0 and scan:
-        w = idle_scan(buf, state, window_ok, sigma, nbr, trigger_limit, windows, True)
+        w = idle_scan_sums(wsum, state, window_ok, sigma, nbr, trigger_limit, windows, True)
     return code, w, valid

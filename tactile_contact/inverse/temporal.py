@@ -197,6 +197,10 @@ class FrameFusion:
         self._trigger_limit = np.array([chi2.isf(trigger, len(g)) for g in groups])
         self._buf = np.zeros((self.window, k))
         self._total = np.zeros(k)
+        # The idle windows' sums of their newest frames, kept as frames join (held_step_sums)
+        # and made again from the ring whenever the window is rebuilt or a look is taken.
+        self._wsum = np.zeros((len(self._idle_windows), k))
+        self._spare = np.zeros(k)
         self._state = np.zeros(kern.STATE_SIZE)
         self._state[kern.SCALE2] = 1.0
         self._state[kern.SCALE_MEMORY] = SCALE_MEMORY
@@ -241,6 +245,7 @@ class FrameFusion:
     def reset(self) -> None:
         """Forget the window and the result (the next frame is solved on its own)."""
         self._state[kern.N] = 0.0
+        self._sums()
         self._ok = None
         self.result = None
         self._pending = None
@@ -265,7 +270,7 @@ class FrameFusion:
         sigma = self.see_noise(sigma, quantised)
         if self._ok is None or self.result is None:
             return self._fresh(delta, ok, sigma, want_traction, want_deflection, "start")
-        changed = kern.held_step(
+        changed = kern.held_step_sums(
             delta,
             ok,
             self._ok,
@@ -277,6 +282,9 @@ class FrameFusion:
             self._local_limit,
             self._q,
             self._limits,
+            self._wsum,
+            self._idle_windows,
+            self._spare,
         )
         return self.after_held_step(
             changed, delta, ok, sigma, want_traction, want_deflection, context, -1
@@ -397,6 +405,8 @@ class FrameFusion:
             scan,
             self._trigger_limit,
             self._idle_windows,
+            self._wsum,
+            self._spare,
         )
         if code < 0:
             return None
@@ -455,6 +465,28 @@ class FrameFusion:
         kern.idle_scan(
             buf, state, ok, sigma, self._nbr, self._trigger_limit, self._idle_windows, True
         )
+        wsum, spare = self._wsum.copy(), np.zeros(k)
+        kern.window_sums(buf, state, self._idle_windows, wsum)
+        for m in (1, 0):
+            kern.held_step_sums(
+                d,
+                ok,
+                ok,
+                sigma,
+                buf,
+                total,
+                state,
+                self._nbr,
+                self._local_limit,
+                q[:, :m],
+                limits,
+                wsum,
+                self._idle_windows,
+                spare,
+            )
+        kern.idle_scan_sums(
+            wsum, state, ok, sigma, self._nbr, self._trigger_limit, self._idle_windows, True
+        )
         kern.best_split(buf, state, total, sigma, q)
         # A node's message readings (quiet_frame): read-only float32 ΔC and uint8 status, as
         # np.frombuffer gives them (inverse.readings' constants; any positive values do).
@@ -481,6 +513,8 @@ class FrameFusion:
             True,
             self._trigger_limit,
             self._idle_windows,
+            wsum,
+            spare,
         )
         kern.orthonormal(q, ok, sigma, np.zeros((k, 1)))
 
@@ -514,8 +548,8 @@ class FrameFusion:
             return None
         w = scanned
         if w < 0:
-            w = kern.idle_scan(
-                self._buf,
+            w = kern.idle_scan_sums(
+                self._wsum,
                 self._state,
                 self._ok,
                 sigma,
@@ -530,6 +564,7 @@ class FrameFusion:
         if w < 2:
             return None
         self._since_check = 0
+        self._sums()  # (a look taken: the kept sums made again, no drift from adding)
         return int(w), bool(clock)
 
     def _idle_solve(self, w: int, clock: bool, sigma: NDArray) -> object | None:
@@ -557,6 +592,10 @@ class FrameFusion:
         """The frame-to-frame scatter [m] (at least the tests' floor)."""
         return sigma * math.sqrt(max(self._state[kern.SCALE2], self._state[kern.SCALE_FLOOR]))
 
+    def _sums(self) -> None:
+        """The idle windows' kept sums made from the ring (after it was rebuilt)."""
+        kern.window_sums(self._buf, self._state, self._idle_windows, self._wsum)
+
     def _rows(self, n: int) -> NDArray[np.intp]:
         """Ring rows of the newest n frames, oldest first."""
         head = int(self._state[kern.HEAD])
@@ -579,6 +618,7 @@ class FrameFusion:
         self._buf[0] = x
         self._total[:] = x
         self._state[kern.N], self._state[kern.HEAD] = 1.0, 1.0 % self.window
+        self._sums()
         self.result = self._call(x, sigma, 1, want_t, want_d)
         self.result_frames = 1
         self._since = 0
@@ -600,6 +640,7 @@ class FrameFusion:
         directions, the frames before it are dropped and the rest solved."""
         rows = self._rows(self.frames)
         self._total[:] = self._buf[rows].sum(axis=0)  # (no drift from adding and removing)
+        self._sums()
         self.result = self._call(self._mean(), sigma, self.frames, want_t, want_d)
         self._directions(sigma)
         if self._trim_before_change(sigma):
@@ -637,6 +678,7 @@ class FrameFusion:
         keep = n - old
         self._state[kern.N] = float(keep)
         self._total[:] = self._buf[self._rows(keep)].sum(axis=0)
+        self._sums()
         self.counts.changes["step"] = self.counts.changes.get("step", 0) + 1
         return True
 
