@@ -104,7 +104,8 @@ def taxel_matrix(
     return patch.model.gain * out
 
 
-#: Distance step [m] of the round-contact tables (radial_responses' default).
+#: Distance step [m] of the round-contact tables of electrode footprints (round_contact.TABLE_STEP;
+#: point taxels: round_contact.table_step).
 ROUND_STEP = 1.0e-4
 
 #: The representative reading a rule picks λ or the TSVD rank for: a 12 mm sphere [m radius]
@@ -226,9 +227,11 @@ def build_patch(
             FAMILIES,
             RoundTables,
             radial_responses,
+            table_step,
         )
 
         radii = np.asarray(DEFAULT_RADII)
+        dist_step = table_step(patch.footprint)
         # The taxel readings (footprint, gain) for the fit, and the point deflection for the
         # output deflection grid, from one FFT field per profile.
         resp = radial_responses(
@@ -237,11 +240,12 @@ def build_patch(
             e.poisson,
             [patch.footprint, 0.0],
             [(f, float(a)) for f in range(len(FAMILIES)) for a in radii],
+            step=dist_step,
             model=patch.model.kind,
             psi=patch.model.psi,
         )
         shape = (len(FAMILIES), len(radii), -1)
-        tables = RoundTables(radii, ROUND_STEP, patch.model.gain * resp[:, 0].reshape(shape))
+        tables = RoundTables(radii, dist_step, patch.model.gain * resp[:, 0].reshape(shape))
         arrays["round_table"] = tables.table
         arrays["round_point_table"] = resp[:, 1].reshape(shape)
         arrays["round_radii"] = tables.radii
