@@ -30,7 +30,6 @@ from tactile_contact.inverse.contacts import (
 )
 from tactile_contact.inverse.readings import Frame
 from tactile_contact.inverse.round_contact import (
-    FAMILIES,
     RoundFit,
     RoundTables,
     follow_round_contact,
@@ -51,15 +50,17 @@ FOLLOW_SLACK = 10.0
 #: load bench's 2 N sphere), which changes by 10-30 from frame to frame as it slides; with
 #: the fixed slack alone, 9 % of its frames were searched again for nothing.
 FOLLOW_SLACK_SHARE = 0.3
-#: A single contact searched in precise readings and fitted as a punch at least this broad [m]
-#: is searched again from its centre (round_contact.rescan_round_contact): a broad punch and a
-#: broad sphere read alike, and the search ended on the punch where the sphere explained the
-#: readings better (bench_robust, full protocol, point truth, calibrated, 1 % noise: a 12 mm
-#: sphere between three taxels at 1.8 N, −34.5 %). Only there: on every frame the rescan
-#: cost 14 % of a float contact frame; on broad punches (38 of 144 frames) it costs ≈ 0 at
-#: p50 and wins the same (p90 of all presses 17.2 → 14.1 %). Quantised readings are left
+#: A single contact searched in precise readings and fitted at least this broad [m], punch
+#: or sphere, is searched again from its centre (round_contact.rescan_round_contact): a broad
+#: punch and a broad sphere read alike, and the search ended on the punch where the sphere
+#: explained the readings better (bench_robust, full protocol, point truth, calibrated, 1 %
+#: noise: a 12 mm sphere between three taxels at 1.8 N, −34.5 %); a sphere's radius–force
+#: valley is as flat (noise-free 6 mm spheres at 1.06 and 1.37 N fitted as 3.4–3.6 mm spheres,
+#: −8.5 %, 0.006 σ² above the true contact's valley). Only there: on every frame the rescan
+#: cost 14 % of a float contact frame; on broad fits it costs ≈ 0 at p50 (1.82 → 1.95 ms p50,
+#: mean 2.35 → 2.32 ms on 240 float presses) and wins the same. Quantised readings are left
 #: alone: their posterior spans both families.
-RESCAN_PUNCH = 3.0e-3
+RESCAN_BROAD = 3.0e-3
 #: Relative model error [-] the χ² test allows on top of the noise (the tables against a
 #: finer forward model: 1–4 %).
 ROUND_MODEL_ERROR = 0.05
@@ -242,10 +243,10 @@ class ContactFit:
         return RoundContacts(fits, float(np.linalg.norm(pred - d)), followed)
 
     def _rescan(self, fit: RoundFit, xy: NDArray, d: NDArray, s: NDArray) -> RoundFit:
-        """``fit``, or the contact rescanned from its centre when ``fit`` is a punch at least
-        RESCAN_PUNCH broad and the rescan, on the skin, explains the readings d [m] at xy [m]
+        """``fit``, or the contact rescanned from its centre when ``fit`` is at least
+        RESCAN_BROAD broad and the rescan, on the skin, explains the readings d [m] at xy [m]
         better (Σ ((prediction − d)/s)², s [m] the readings' noise)."""
-        if FAMILIES[fit.family] != "punch" or fit.radius < RESCAN_PUNCH:
+        if fit.radius < RESCAN_BROAD:
             return fit
         again = rescan_round_contact(self.tables, xy, d, fit, sigma=s)
         if again is None or not on_skin(self._skin, again.center):
