@@ -22,11 +22,12 @@ from tactile_contact.inverse.reconstruction import Reconstructor
 from tactile_contact.inverse.round_contact import (
     DEFAULT_RADII,
     FAMILIES,
+    TABLE_STEP,
     RoundTables,
     radial_responses,
 )
 from tactile_contact.model.layout import load_layout
-from tactile_contact.offline.build import ROUND_STEP, grids_for
+from tactile_contact.offline.build import grids_for
 
 ROOT = Path(__file__).resolve().parents[1]
 EPS32 = 2.0**-23
@@ -70,7 +71,7 @@ def forearm_detector() -> tuple[ContactDetector, np.ndarray]:
         psi=patch.model.psi,
     )
     table = patch.model.gain * resp[:, 0].reshape((len(FAMILIES), len(radii), -1))
-    tables = RoundTables(radii, ROUND_STEP, table)
+    tables = RoundTables(radii, TABLE_STEP, table)
     xy = patch.taxel_xy()
     sigma = np.random.default_rng(3).uniform(0.5e-6, 2e-6, len(xy))
     return patch_detector(tables, xy, grids_for(patch)[0].cell_size, sigma), sigma

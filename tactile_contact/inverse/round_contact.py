@@ -223,23 +223,7 @@ def radial_responses(
     fp = np.asarray(footprints, dtype=np.float64).reshape(-1)
     if not np.all(np.isfinite(fp) & (fp >= 0)):
         raise ValueError("footprints must be finite radii >= 0 [m]")
-    half = reach + float(fp.max()) + 2 * cell
-    n = 2 * math.ceil(half / cell) + 1  # odd: the contact centre is a cell centre
-    op = regular_grid_operator(n, n, cell, cell, thickness, young, poisson, model, psi)
-    # The Love operator takes cell pressures [Pa]; the point-force one, forces [N].
-    per_cell = 1.0 if model == "love" else cell * cell
-    coords = (np.arange(n) - n // 2) * cell
-    gx, gy = np.meshgrid(coords, coords, indexing="ij")
-    centers = np.column_stack((gx.ravel(), gy.ravel()))
-    box = np.abs(centers).max(axis=1)  # (once: per profile it was a sixth of a build's time)
-    hs = np.full(2, 0.5 * cell)
     dist = np.arange(round(reach / step) + 1) * step
-    samples = []
-    for r in fp:
-        q, w = disc_quadrature(float(r), 8, 24)
-        px = (dist[:, None] + q[None, :, 0]) / cell + n // 2
-        py = (np.zeros_like(dist)[:, None] + q[None, :, 1]) / cell + n // 2
-        samples.append((px, py, w))
     out = np.empty((len(profiles), len(fp), len(dist)))
     point = (fp == 0.0) if model == "love" else np.zeros(len(fp), dtype=bool)
     if point.any():
@@ -251,6 +235,22 @@ def radial_responses(
         out[:, point] = exact[:, None, :]
         if point.all():
             return out
+    half = reach + float(fp.max()) + 2 * cell
+    n = 2 * math.ceil(half / cell) + 1  # odd: the contact centre is a cell centre
+    op = regular_grid_operator(n, n, cell, cell, thickness, young, poisson, model, psi)
+    # The Love operator takes cell pressures [Pa]; the point-force one, forces [N].
+    per_cell = 1.0 if model == "love" else cell * cell
+    coords = (np.arange(n) - n // 2) * cell
+    gx, gy = np.meshgrid(coords, coords, indexing="ij")
+    centers = np.column_stack((gx.ravel(), gy.ravel()))
+    box = np.abs(centers).max(axis=1)  # (once: per profile it was a sixth of a build's time)
+    hs = np.full(2, 0.5 * cell)
+    samples = []
+    for r in fp:
+        q, w = disc_quadrature(float(r), 8, 24)
+        px = (dist[:, None] + q[None, :, 0]) / cell + n // 2
+        py = (np.zeros_like(dist)[:, None] + q[None, :, 1]) / cell + n // 2
+        samples.append((px, py, w))
     for k, (fi, radius) in enumerate(profiles):
         shape = (
             FlatPunch(radius)

@@ -104,10 +104,6 @@ def taxel_matrix(
     return patch.model.gain * out
 
 
-#: Distance step [m] of the round-contact tables of electrode footprints (round_contact.TABLE_STEP;
-#: point taxels: round_contact.table_step).
-ROUND_STEP = 1.0e-4
-
 #: The representative reading a rule picks λ or the TSVD rank for: a 12 mm sphere [m radius]
 #: pressing this force [N] on the taxel nearest the centroid of the taxels (the centroid
 #: itself can fall where modules meet, between taxels 7.5 mm away), plus the layout's noise
@@ -233,7 +229,7 @@ def build_patch(
         radii = np.asarray(DEFAULT_RADII)
         dist_step = table_step(patch.footprint)
         # The taxel readings (footprint, gain) for the fit, and the point deflection for the
-        # output deflection grid, from one FFT field per profile.
+        # output deflection grid (round_contact.radial_responses).
         resp = radial_responses(
             patch.layer_thickness,
             e.young,
