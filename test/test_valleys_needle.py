@@ -9,7 +9,7 @@ independent fine forward model (tactile_contact.model.forward.ForwardModel, exac
 pressure on 0.25 mm cells), read at the taxel centres; the bundle: the default patch with
 ``footprint_radius: 0`` (as test/test_valleys.py). And a 6 mm sphere at 1.55 N (seed 11) that
 the search fitted as a 3.25 mm punch at −11.4 % at 8eb856b: the rescan from a broad punch's
-centre (contact_fit.RESCAN_PUNCH) finds the sphere.
+centre (contact_fit.RESCAN_BROAD) finds the sphere.
 """
 
 from __future__ import annotations
