@@ -39,7 +39,7 @@ import benchkit.onecore  # noqa: F401  (before numpy)
 import numpy as np
 from benchkit import LAYOUT, ROOT
 from benchkit.protocol import Patch
-from benchkit.readings import TIERS, readings, seed
+from benchkit.readings import FLOAT_NOISES, TIERS, readings, seed, set_float_noise
 from benchkit.stats import errors
 from benchkit.tables import Report
 from benchkit.truths import N_CAL, N_CAL_QUICK, SHORT, TRUTHS, calibration_presses, test_presses
@@ -86,7 +86,15 @@ def main() -> None:
     ap.add_argument("--truths", help="comma-separated truth names (default: point, gain 1.15)")
     ap.add_argument("--tiers", default="float", help="comma-separated tiers (float, 8-bit)")
     ap.add_argument("--out", type=Path, help="write calibration.md and calibration.json here")
+    ap.add_argument(
+        "--float-noise",
+        choices=FLOAT_NOISES,
+        default="peak",
+        help="float tier: 1 %% of the press's largest reading on every taxel (peak, default) or "
+        "1 %% of each reading (reading; reports go to calibration_reading.md/.json)",
+    )
     args = ap.parse_args()
+    set_float_noise(args.float_noise)
     threadpool_limits(1)
     t0 = time.perf_counter()
     names = [s.strip() for s in args.truths.split(",")] if args.truths else DEFAULT_TRUTHS
@@ -103,7 +111,8 @@ def main() -> None:
     say = Report()
     say(
         f"{n_cal} calibration presses; evaluation: the paper's protocol "
-        f"({'quick' if args.quick else 'full'}) on the same truth, the same draws per bundle"
+        f"({'quick' if args.quick else 'full'}) on the same truth, the same draws per bundle; "
+        f"float noise: 1 % ({args.float_noise})"
     )
     say()
     head = (
@@ -188,14 +197,15 @@ def main() -> None:
             say(f"    {line}")
     say(f"({time.perf_counter() - t0:.0f} s in all; seconds per calibration on a loaded machine)")
     if args.out:
+        stem = "calibration" + (f"_{args.float_noise}" if args.float_noise != "peak" else "")
         say.write(
             args.out,
-            "calibration.md",
+            f"{stem}.md",
             "Calibration with and without indenter names (bench/bench_calibration.py)",
             f".venv/bin/python bench/bench_calibration.py{' --quick' if args.quick else ''} "
-            f"--tiers {','.join(tiers)} --out {args.out}",
+            f"--tiers {','.join(tiers)} --float-noise {args.float_noise} --out {args.out}",
         )
-        (args.out / "calibration.json").write_text(json.dumps({"rows": rows}, indent=1))
+        (args.out / f"{stem}.json").write_text(json.dumps({"rows": rows}, indent=1))
 
 
 if __name__ == "__main__":

@@ -46,7 +46,17 @@ import benchkit.onecore  # noqa: F401  (before numpy)
 import numpy as np
 from benchkit import LAYOUT, ROOT
 from benchkit.protocol import Patch, default_reconstructor
-from benchkit.readings import CLEAR, COUNT_NOISE, NOISE_REL, TIERS, clear_of, readings, seed
+from benchkit.readings import (
+    CLEAR,
+    COUNT_NOISE,
+    FLOAT_NOISES,
+    NOISE_REL,
+    TIERS,
+    clear_of,
+    readings,
+    seed,
+    set_float_noise,
+)
 from benchkit.stats import BANDS, COLUMNS, bandmask, bounds, errors, row_stats, worst_of
 from benchkit.tables import WIDTH, Report, fmt_head, fmt_row
 from benchkit.truths import (
@@ -124,6 +134,13 @@ def main() -> None:
     ap.add_argument("--detail", action="store_true", help="per indenter and place, per row")
     ap.add_argument("--out", type=Path, help="write robust.md and robust.json here")
     ap.add_argument(
+        "--float-noise",
+        choices=FLOAT_NOISES,
+        default="peak",
+        help="float tier: 1 %% of the press's largest reading on every taxel (peak, default) or "
+        "1 %% of each reading (reading; reports go to robust*_reading.md/.json)",
+    )
+    ap.add_argument(
         "--layout",
         type=Path,
         default=LAYOUT,
@@ -131,6 +148,7 @@ def main() -> None:
         "patch's reports go to robust_<patch>.md/.json)",
     )
     args = ap.parse_args()
+    set_float_noise(args.float_noise)
     threadpool_limits(1)
     t_start = time.perf_counter()
     names = (
@@ -165,7 +183,7 @@ def main() -> None:
     n_press = len(next(iter(presses.values()))["f"])
     say(
         f"{n_press} presses per truth ({'quick' if args.quick else 'full'} protocol), "
-        f"{n_cal} calibration presses; float: {NOISE_REL:.0%} noise; 8-bit: "
+        f"{n_cal} calibration presses; float: {NOISE_REL:.0%} noise ({args.float_noise}); 8-bit: "
         f"{COUNT_NOISE} counts + rounding (1 count = {lay.lsb * 1e15:.2f} fF)"
     )
     say(f"(forward simulations: {sim_secs:.0f} s, cache {CACHE.relative_to(ROOT)})")
@@ -269,6 +287,10 @@ def main() -> None:
         shown = args.layout.resolve()
         shown = shown.relative_to(ROOT) if shown.is_relative_to(ROOT) else shown
         stem = f"robust_{lay.name}" if other else "robust"
+        if args.quick:
+            stem += "_quick"
+        if args.float_noise != "peak":
+            stem += f"_{args.float_noise}"
         say.write(
             args.out,
             f"{stem}.md",
@@ -276,6 +298,7 @@ def main() -> None:
             + (f" on {lay.name} ({shown})" if other else ""),
             f".venv/bin/python bench/bench_robust.py{' --quick' if args.quick else ''} "
             + (f"--layout {shown} " if other else "")
+            + (f"--float-noise {args.float_noise} " if args.float_noise != "peak" else "")
             + f"--out {args.out}",
         )
         blob = {

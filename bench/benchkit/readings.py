@@ -21,7 +21,14 @@ from benchkit.protocol import Patch
 from tactile_contact.inverse.reconstruction import Reconstructor
 
 TIERS = ("float", "8-bit")
-NOISE_REL = 0.01  # float tier: σ over the press's largest |δ|
+NOISE_REL = 0.01  # float tier: σ over the press's largest |δ| (or over each |δ|: FLOAT_NOISES)
+#: How the float tier's "1 % noise" scales (issue 26 names no more): ``peak`` — 1 % of the
+#: press's largest compression on every taxel (additive; the harder reading, the benches'
+#: default); ``reading`` — 1 % of each taxel's own compression (a gain error per reading), with
+#: a floor of PEAK_FLOOR of the first so untouched taxels keep a finite σ.
+FLOAT_NOISES = ("peak", "reading")
+PEAK_FLOOR = 1e-3
+float_noise = "peak"  # set_float_noise (the benches' --float-noise)
 COUNT_NOISE = 0.15  # 8-bit tier: converter noise [counts RMS]
 CLEAR = 10.0  # a press clearly above noise: a known-shape matched filter reads ‖δ/σ‖ ≥ this
 
@@ -31,10 +38,29 @@ def seed(*parts: str) -> int:
     return zlib.crc32("/".join(parts).encode())
 
 
+def set_float_noise(mode: str) -> None:
+    """Choose how the float tier's noise scales (one of FLOAT_NOISES) for this process."""
+    global float_noise
+    if mode not in FLOAT_NOISES:
+        raise ValueError(f"float noise {mode!r}: one of {', '.join(FLOAT_NOISES)}")
+    float_noise = mode
+
+
+def float_sigma(d: NDArray) -> NDArray:
+    """σ [m] of the float tier's noise on compressions d (..., K) [m], by ``float_noise``:
+    (..., 1) for ``peak``, (..., K) for ``reading``."""
+    peak = NOISE_REL * np.abs(d).max(axis=-1, keepdims=True)
+    if float_noise == "peak":
+        return peak
+    if float_noise == "reading":
+        return np.maximum(NOISE_REL * np.abs(d), PEAK_FLOOR * peak)
+    raise ValueError(f"float_noise {float_noise!r}: one of {', '.join(FLOAT_NOISES)}")
+
+
 def readings(lay: Patch, d: NDArray, tier: str, rng: np.random.Generator) -> NDArray:
     """The tier's readings of compressions d (N, K): deflections [m] (float) or ΔC [F]."""
     if tier == "float":
-        return d + rng.normal(size=d.shape) * NOISE_REL * np.abs(d).max(axis=1, keepdims=True)
+        return d + rng.normal(size=d.shape) * float_sigma(d)
     counts = np.rint(lay.to_delta_c(d) / lay.lsb + rng.normal(0.0, COUNT_NOISE, d.shape))
     return counts * lay.lsb
 
@@ -43,7 +69,7 @@ def noise_of(lay: Patch, d: NDArray, tier: str) -> NDArray | float:
     """(N, 1) or scalar compression noise [m] of the tier (8-bit: converter noise and rounding
     at small readings)."""
     if tier == "float":
-        return NOISE_REL * np.abs(d).max(axis=1, keepdims=True)
+        return float_sigma(d)
     return float(lay.to_deflection(np.array([lay.lsb]))[0]) * math.hypot(COUNT_NOISE, 12**-0.5)
 
 

@@ -21,7 +21,7 @@ import scipy.stats
 from numpy.typing import NDArray
 
 from benchkit.protocol import Patch
-from benchkit.readings import COUNT_NOISE, NOISE_REL
+from benchkit.readings import COUNT_NOISE, float_sigma
 from tactile_contact.inverse.reconstruction import Reconstructor
 
 #: Force bands of the tables.
@@ -113,7 +113,7 @@ def bounds(lay: Patch, p: dict[str, NDArray], tier: str) -> tuple[NDArray, NDArr
     sf, sc = [], []
     for d, jac, f in zip(p["d"], p["J"], p["f"], strict=True):
         if tier == "float":
-            sigma = np.full(len(d), NOISE_REL * np.abs(d).max())
+            sigma = np.broadcast_to(float_sigma(d), d.shape)
         else:  # in ΔC: the sensor model's slope, the converter noise plus the rounding
             eps = 1e-9
             slope = (lay.to_delta_c(d + eps) - lay.to_delta_c(d - eps)) / (2 * eps)
