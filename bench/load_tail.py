@@ -130,6 +130,31 @@ def main() -> int:
         published.append((period[0], time.perf_counter() - started[0], len(rows.patches)))
 
     node.batches.publish = timed_publish
+    # A batch's rows stage all-in (reading the bytes, every patch-frame of it, its rows),
+    # thread CPU per patch-frame, for the batches whose every patch-frame was quiet: held
+    # idle ("idle") or held idle or in contact ("quiet"), no re-solve left deferred. Why:
+    # a batch's quiet frames may go through one compiled call (ros/quiet_batch.py), which
+    # PatchPipeline.frame's timing above does not see.
+    rows_of = node.batches._rows_of
+    from tactile_contact.ros.cdr import read_taxel_batch
+
+    batch_cpu: dict[str, list[float]] = collections.defaultdict(list)
+
+    def timed_rows(data, rows, _rows_of=rows_of):  # type: ignore[no-untyped-def]
+        c = time.thread_time()
+        out = _rows_of(data, rows)
+        cpu = time.thread_time() - c
+        if period[0] >= args.skip:
+            fusions = [node.pipelines[p].recon.fusion for p in read_taxel_batch(data).patches]
+            quiet = all(f.last == "held" and not f.pending for f in fusions)
+            if quiet:
+                each = cpu / len(fusions)
+                batch_cpu["quiet"].append(each)
+                if not any(f.result.in_contact for f in fusions):
+                    batch_cpu["idle"].append(each)
+        return out
+
+    node.batches._rows_of = timed_rows
     pauses: list[float] = []
     gc_start = [0.0]
 
@@ -190,6 +215,14 @@ def main() -> int:
             f" its CPU time mean {c.mean():.1f}, p50 {np.median(c):.1f}, p99 "
             f"{np.percentile(c, 99):.1f} µs"
         )
+    for kind in ("idle", "quiet"):
+        c = np.asarray(batch_cpu[kind]) * 1e6
+        if c.size:
+            print(
+                f"  a batch of {kind} patch-frames only, its rows stage all-in, thread CPU a "
+                f"patch-frame: batches {c.size}, mean {c.mean():.1f}, p50 {np.median(c):.1f}, "
+                f"p90 {np.percentile(c, 90):.1f}, p99 {np.percentile(c, 99):.1f} µs"
+            )
     rows_after = [dt for j, dt, n in published if j >= skip for _ in range(n)]
     print(f"a row, its batch's start → its ContactArray published: {ms(rows_after)}")
     print(

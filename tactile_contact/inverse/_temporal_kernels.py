@@ -386,3 +386,148 @@ def quiet_frame(
     if code == 0 and scan:
         w = idle_scan_sums(wsum, state, window_ok, sigma, nbr, trigger_limit, windows, True)
     return code, w, valid
+
+
+@numba.njit(**_JIT)
+def learn_noise(d, ok, sigma, var, m4, alpha, spike):  # pragma: no cover - compiled
+    """NoiseTracker.update's step (inverse.detection): False (nothing learnt) if a used
+    reading (``ok`` and finite) exceeds ``spike``·σ; else, at the used taxels,
+    var += α(δ² − var) and m4 += α(δ⁴ − m4) (the same floating-point operations, in the same
+    order, as numpy's). Here, not in detection.py, so that quiet_batch may call it (a cached
+    kernel calls only kernels of its own file); detection's tracker uses this one."""
+    n = d.shape[0]
+    for i in range(n):
+        x = d[i]
+        if ok[i] and math.isfinite(x) and abs(x) > spike * sigma[i]:
+            return False
+    for i in range(n):
+        x = d[i]
+        if ok[i] and math.isfinite(x):
+            x2 = x * x
+            var[i] += alpha * (x2 - var[i])
+            m4[i] += alpha * (x2 * x2 - m4[i])
+    return True
+
+
+#: quiet_batch's arrays of one patch (its slot s) in its typed lists: F1 float vectors at
+#: f1[F1·s + j], I1 integer vectors, F2 float matrices, B1 bool vectors (the slots' order).
+(
+    F1_CONVERT,
+    F1_DELTA,
+    F1_SIGMA,
+    F1_TOTAL,
+    F1_STATE,
+    F1_LOCAL,
+    F1_LIMITS,
+    F1_TRIGGER,
+    F1_SPARE,
+    F1_NOISE_SIGMA,
+    F1_NOISE_VAR,
+    F1_NOISE_M4,
+    F1_NOISE_RATE,
+) = range(13)
+F1 = 13
+I1_PERM, I1_WINDOWS = range(2)
+I1 = 2
+F2_BUF, F2_Q, F2_WSUM = range(3)
+F2 = 3
+B1_OK, B1_WINDOW_OK = range(2)
+B1 = 2
+#: quiet_batch's answer per patch: out[p, OUT_*].
+OUT_CODE, OUT_WINDOW, OUT_VALID, OUT_FAST, OUT_LEARNT = range(5)
+
+
+@numba.njit(**_JIT)
+def quiet_batch(
+    dc, status, starts, slots, scan, idle, expect, unusable, f1, i1, f2, i2, b1, out
+):  # pragma: no cover - compiled
+    """:func:`quiet_frame` for each of a batch's quiet patches in one call (contact_
+    reconstruction's ContactBatches: an idle patch-frame's Python was most of its cost), and
+    for those nothing further happens to, the noise tracker's step too.
+
+    Args:
+        dc, status: the batch's ΔC [F] and status flags, every patch's rows one after the
+            other (the message's arrays); starts: (P,) each patch's first row.
+        slots: (P,) each patch's slot in the typed lists f1, i1, f2, i2 (nbr), b1 (layout:
+            the F1_*, I1_*, F2_*, B1_* constants; its fusion's and its noise tracker's own
+            arrays, changed in place as quiet_frame and learn_noise change them).
+        scan: (P,) run the idle scan (FrameFusion.scan_due of an idle result); idle: (P,)
+            the held result has no contact (the noise tracker learns from the frame);
+            expect: (P,) the held result's taxels used.
+        unusable: the status flags that leave a taxel out.
+        out: (P, 5) filled: quiet_frame's code, scan window and valid count; whether nothing
+            more happens (fast: unchanged, the valid count the result's, the scan picked
+            nothing); whether the tracker learnt from it (fast idle patches only).
+    """
+    for p in range(slots.shape[0]):
+        s = slots[p]
+        a = starts[p]
+        perm = i1[I1 * s + I1_PERM]
+        k = perm.shape[0]
+        x = F1 * s
+        delta = f1[x + F1_DELTA]
+        ok = b1[B1 * s + B1_OK]
+        code, w, valid = quiet_frame(
+            dc[a : a + k],
+            status[a : a + k],
+            perm,
+            unusable,
+            f1[x + F1_CONVERT],
+            delta,
+            ok,
+            b1[B1 * s + B1_WINDOW_OK],
+            f1[x + F1_SIGMA],
+            f2[F2 * s + F2_BUF],
+            f1[x + F1_TOTAL],
+            f1[x + F1_STATE],
+            i2[s],
+            f1[x + F1_LOCAL],
+            f2[F2 * s + F2_Q],
+            f1[x + F1_LIMITS],
+            scan[p],
+            f1[x + F1_TRIGGER],
+            i1[I1 * s + I1_WINDOWS],
+            f2[F2 * s + F2_WSUM],
+            f1[x + F1_SPARE],
+        )
+        fast = code == 0 and valid == expect[p] and (not scan[p] or w == 0)
+        learnt = False
+        if fast and idle[p]:
+            rate = f1[x + F1_NOISE_RATE]
+            learnt = learn_noise(
+                delta,
+                ok,
+                f1[x + F1_NOISE_SIGMA],
+                f1[x + F1_NOISE_VAR],
+                f1[x + F1_NOISE_M4],
+                rate[0],
+                rate[1],
+            )
+        out[p, OUT_CODE] = code
+        out[p, OUT_WINDOW] = w
+        out[p, OUT_VALID] = valid
+        out[p, OUT_FAST] = fast
+        out[p, OUT_LEARNT] = learnt
+
+
+# quiet_batch's typed lists are made and changed here, compiled and cached: from Python,
+# numba.typed.List compiles its methods in every new process (≈ 1 s a list type, a worker's
+# first batch held for seconds).
+@numba.njit(**_JIT)
+def list_of(a):  # pragma: no cover - compiled
+    """A typed list holding ``a``."""
+    out = numba.typed.List()
+    out.append(a)
+    return out
+
+
+@numba.njit(**_JIT)
+def list_add(lst, a):  # pragma: no cover - compiled
+    """``a`` appended to the typed list ``lst``."""
+    lst.append(a)
+
+
+@numba.njit(**_JIT)
+def list_set(lst, i, a):  # pragma: no cover - compiled
+    """``lst[i] = a`` in the typed list ``lst``."""
+    lst[i] = a

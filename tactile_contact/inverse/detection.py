@@ -39,6 +39,8 @@ from scipy.stats import beta
 from scipy.stats import chi2 as chi2_dist
 from scipy.stats import t as student_t
 
+from tactile_contact.inverse._temporal_kernels import learn_noise as _learn
+
 #: A bank statistic at these fractions of its thresholds (z, share) or more sends the frame
 #: to the refined test (ContactDetector.near_miss): each about 2-5 % of white-noise frames.
 NEAR_Z, NEAR_SHARE = 0.6, 0.5
@@ -533,33 +535,24 @@ class NoiseTracker:
                 f"delta and valid must have shape {self._var.shape}, got {d.shape}, {ok.shape}"
             )
         # (one compiled pass: numpy's dozen calls cost ≈ 15–35 µs an idle patch-frame)
-        if not _learn(d, ok, self.sigma, self._var, self._m4, self._alpha, self.SPIKE_SIGMA):
-            return
+        if _learn(d, ok, self.sigma, self._var, self._m4, self._alpha, self.SPIKE_SIGMA):
+            self.learnt()
+
+    def step_arrays(self) -> tuple[NDArray[np.float64], NDArray[np.float64], float, float]:
+        """(var, m4, α, spike): what :meth:`update`'s compiled step takes besides the frame and
+        ``sigma`` (var and m4 changed in place), for a caller that runs that step itself."""
+        return self._var, self._m4, self._alpha, self.SPIKE_SIGMA
+
+    def learnt(self) -> None:
+        """Count a frame the compiled step learnt from (:meth:`update`, or a caller that ran
+        that step itself: contact_reconstruction's batches); every ``every`` such frames a
+        new ``sigma``."""
         self.frames_used += 1
         self._count += 1
         if self._count >= self._every:
             self._count = 0
             self.sigma = np.maximum(np.sqrt(self._var), self.floor)
             self.tolerance = self._tolerance()
-
-
-@numba.njit(cache=True, nogil=True)
-def _learn(d, ok, sigma, var, m4, alpha, spike):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """NoiseTracker.update's step: False (nothing learnt) if a used reading (``ok`` and finite)
-    exceeds ``spike``·σ; else, at the used taxels, var += α(δ² − var) and m4 += α(δ⁴ − m4)
-    (the same floating-point operations, in the same order, as numpy's)."""
-    n = d.shape[0]
-    for i in range(n):
-        x = d[i]
-        if ok[i] and math.isfinite(x) and abs(x) > spike * sigma[i]:
-            return False
-    for i in range(n):
-        x = d[i]
-        if ok[i] and math.isfinite(x):
-            x2 = x * x
-            var[i] += alpha * (x2 - var[i])
-            m4[i] += alpha * (x2 * x2 - m4[i])
-    return True
 
 
 @numba.njit(cache=True, nogil=True)

@@ -416,6 +416,76 @@ class FrameFusion:
         )
         return result, frame, valid
 
+    def batch_ready(self, sigma: NDArray) -> int:
+        """Whether the next frame may go by a batch's compiled call (kern.quiet_batch) with
+        ``sigma`` (as :meth:`step_message` would take it): -1 if not (no window held, a
+        re-solve waiting, a new noise array, or this frame's held step would be followed by
+        a re-solve or a look on the clock: the caller's own path then), else whether the
+        idle scan runs (:attr:`scan_due` of an idle result: 1) or not (0)."""
+        res = self.result
+        seen = self._sigma_seen
+        if (
+            res is None
+            or self._ok is None
+            or self._pending is not None
+            or not self._quantised
+            or seen[0] is not sigma
+            or not seen[1]
+        ):
+            return -1
+        if res.in_contact:  # type: ignore[attr-defined]
+            n = min(self.frames + 1, self.window)  # (the window after this frame joins it)
+            due = n in RESOLVE_AT if n < self.window else self._since + 1 >= self.resolve_every
+            return -1 if due else 0
+        if self._since_check + 1 > IDLE_HOLDOFF:
+            return -1 if self._since_check + 1 >= self.idle_every else 1
+        return 0
+
+    def batch_held(self, idle: bool) -> None:
+        """The bookkeeping of :meth:`after_held_step` for a frame kern.quiet_batch found
+        unchanged and that nothing follows (no re-solve due, the scan picked nothing):
+        the last result republished. (``context`` stays the last frame's that set it: only
+        a solve reads it, and every frame that solves or defers one sets it.)"""
+        self._since += 1
+        if idle:
+            self._since_check += 1
+        self.counts.held += 1
+        self.last = "held"
+
+    def after_batch(
+        self, code: int, scanned: int, delta: NDArray, ok: NDArray, sigma: NDArray
+    ) -> tuple[object, Frame]:
+        """:meth:`step_message`'s rest for a frame kern.quiet_batch tested (``code``,
+        ``scanned``: its held step's and idle scan's answers; ``delta``, ``ok``: the frame
+        it converted, copied here: the call's scratch arrays are reused)."""
+        frame = Frame(delta.copy(), ok.copy(), sigma)
+        result = self.after_held_step(
+            code, frame.delta, frame.ok, sigma, False, False, frame, scanned
+        )
+        return result, frame
+
+    def batch_replaced(self) -> tuple[NDArray, NDArray]:
+        """(window_ok, q): the two of :meth:`batch_arrays` a change or a re-solve replaces."""
+        return self._ok, self._q  # type: ignore[return-value]
+
+    def batch_arrays(self) -> dict[str, NDArray]:
+        """The arrays kern.quiet_batch reads and changes in place (its F1_*, I1_*, F2_*, B1_*
+        slots; ``window_ok`` and ``q`` are replaced by a change or a re-solve)."""
+        return {
+            "window_ok": self._ok,  # type: ignore[dict-item]
+            "total": self._total,
+            "state": self._state,
+            "local": self._local_limit,
+            "limits": self._limits,
+            "trigger": self._trigger_limit,
+            "spare": self._spare,
+            "windows": self._idle_windows,
+            "buf": self._buf,
+            "q": self._q,
+            "wsum": self._wsum,
+            "nbr": self._nbr,
+        }
+
     @property
     def context(self) -> object:
         """What the last :meth:`step` was given as ``context`` (from a Reconstructor: the

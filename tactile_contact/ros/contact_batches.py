@@ -19,6 +19,7 @@ import math
 import time
 from typing import Any
 
+import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
@@ -89,7 +90,8 @@ class ContactBatches:
     """
 
     def __init__(self, node: Node, batches: bool) -> None:
-        from tactile_contact.ros.patch_pipeline import OUTPUT_QOS, QUIET_EVENTS
+        from tactile_contact.ros.patch_pipeline import _UNUSABLE, OUTPUT_QOS, QUIET_EVENTS
+        from tactile_contact.ros.quiet_batch import QuietBatch
 
         self.node = node
         self.pub = node.create_publisher(
@@ -103,6 +105,9 @@ class ContactBatches:
         self._deferred: dict[str, Any] = {}
         #: Batches taken inside another's callback (their rows in its ContactArray).
         self.coalesced = 0
+        #: A batch's idle and held patch-frames go through one compiled call (None: each by
+        #: PatchPipeline.frame; the same results, test/test_quiet_batch.py).
+        self.quiet: QuietBatch | None = QuietBatch(int(_UNUSABLE))
         self.sub: Any = None
         if batches:
             qos = QoSProfile(depth=BATCH_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -188,6 +193,14 @@ class ContactBatches:
         node = self.node
         pipelines, serving, newest = node.pipelines, node.link.serving, self._newest
         off = view.offsets
+        quiet = self.quiet
+        if quiet is not None and not (
+            view.delta_c.dtype == np.float32
+            and view.status.dtype == np.uint8
+            and view.taxel_ids.dtype == np.uint16
+        ):
+            quiet = None
+        items = []
         for i, name in enumerate(view.patches):
             pipe = pipelines.get(name)
             if pipe is None or name not in serving:
@@ -197,10 +210,15 @@ class ContactBatches:
                 continue  # a newer frame of it was solved already (out of a queue)
             newest[name] = stamp
             a, b = off[i], off[i + 1]
-            result = pipe.frame(
-                stamp, view.taxel_ids[a:b], view.delta_c[a:b], view.status[a:b], contact=False
-            )
-            add_row(rows, pipe, stamp, result)
+            if quiet is None:
+                result = pipe.frame(
+                    stamp, view.taxel_ids[a:b], view.delta_c[a:b], view.status[a:b], contact=False
+                )
+                add_row(rows, pipe, stamp, result)
+            else:
+                items.append((pipe, stamp, a, b, pipe.batch_ready(view.taxel_ids[a:b])))
+        if items:
+            quiet.run(view, items, rows, add_row)  # type: ignore[union-attr]
         return rows
 
     def publish(self, rows: ContactRows) -> None:
@@ -225,4 +243,7 @@ class ContactBatches:
             "batches": self.batches,
             "bad_batches": self.bad_batches,
             "batches_coalesced": self.coalesced,
+            # frames a batch's compiled call took with nothing more, and with Python after
+            "frames_batch_held": self.quiet.held if self.quiet is not None else 0,
+            "frames_batch_rest": self.quiet.rest if self.quiet is not None else 0,
         }

@@ -462,7 +462,83 @@ class PatchPipeline:
         out = fusion.step_message(delta_c, status, self._perm, _UNUSABLE, self._convert, sigma)
         if out is None:
             return _FULL_PATH
-        result, seen_frame, used = out
+        return self._quiet_rest(stamp_ns, *out, t0, t1)
+
+    def batch_ready(self, ids: np.ndarray) -> int:
+        """Whether this frame of a batch (taxel ids ``ids``, the message's uint16) may go by
+        the batch's compiled call (tactile_contact.ros.quiet_batch): -1 if not (it takes
+        :meth:`frame`), else FrameFusion.batch_ready's answer (whether the idle scan runs).
+        The checks :meth:`_quiet_frame` makes, and those that let the frame skip the rest
+        of it (:meth:`batch_held`)."""
+        fusion = self.recon.fusion
+        if not self.quiet or fusion is None or ids.tobytes() != self._perm_key:
+            return -1
+        self._recount()
+        if any(self._subscribed.values()):
+            return -1
+        noise = self.noise
+        seen, sigma = self._noise_seen
+        result = fusion.result
+        if noise.sigma is not seen or result is not self._checked or result is None:
+            return -1
+        if result.deflection is not None:
+            return -1
+        detector = self.recon.detector
+        if detector is not None:
+            detector.tolerance = noise.tolerance  # (as the full path)
+        return fusion.batch_ready(sigma)
+
+    def batch_held(self, stamp_ns: int, learnt: bool, now: float, times: tuple) -> Any:
+        """:meth:`frame`'s bookkeeping for a batch's frame the compiled call found unchanged
+        and that nothing follows (FrameFusion.batch_held): the counters, the noise tracker's
+        count (``learnt``: its compiled step learnt from the frame), the contact log, the
+        held result returned. ``now``: monotonic time; ``times``: this frame's share of the
+        batch's map, solve and publish [s]. What :meth:`_quiet_rest` and :meth:`_finish`
+        do for such a frame, nothing per patch published (none subscribed)."""
+        fusion = self.recon.fusion
+        result = fusion.result
+        idle = not result.in_contact
+        fusion.batch_held(idle)
+        stats = self.stats
+        stats.frames += 1
+        stats.quiet += 1
+        self._last_frame = now
+        if learnt:
+            self.noise.learnt()
+        stats.time("map", times[0])
+        stats.time("solve", times[1])
+        if idle:
+            stats.skipped_idle += 1
+        else:
+            stats.solved += 1
+            stats.constrained += int(result.solver == "nnls")
+        if idle and self._contact is None:
+            pass  # (_follow_contact has nothing to do)
+        else:
+            self._follow_contact(stamp_ns * 1e-9, result)
+        stats.skipped_deflection += 1
+        stats.skipped_images += 1
+        stats.skipped_visualization += 1
+        stats.time("publish", times[2])
+        return result
+
+    def batch_rest(
+        self, stamp_ns: int, code: int, scanned: int, valid: int, delta: Any, ok: Any, t0: float
+    ) -> Any:
+        """:meth:`frame`'s rest for a batch's frame the compiled call tested (held step
+        ``code``, idle scan ``scanned``, ``valid`` taxels the status allows; ``delta``, ``ok``:
+        the frame as converted) where more follows: a change, a look, a count that differs."""
+        fusion = self.recon.fusion
+        t1 = time.perf_counter()
+        result, seen_frame = fusion.after_batch(code, scanned, delta, ok, self._noise_seen[1])
+        return self._quiet_rest(stamp_ns, result, seen_frame, valid, t0, t1)
+
+    def _quiet_rest(
+        self, stamp_ns: int, result: Any, seen_frame: Any, used: int, t0: float, t1: float
+    ) -> Any:
+        """The quiet path after the fusion's step: counters, noise learnt, outputs."""
+        fusion = self.recon.fusion
+        noise = self.noise
         stats = self.stats
         stats.frames += 1
         stats.quiet += 1
