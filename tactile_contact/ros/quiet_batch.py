@@ -172,34 +172,29 @@ class QuietBatch:
         t0 = time.perf_counter()
         ready = [it for it in items if it[4] >= 0]
         n = len(ready)
-        out = None
+        answers: list = []
         held: list[_Slot] = []
         share, now = (0.0, 0.0, 0.0), 0.0
         if n:
-            slots = np.empty(n, dtype=np.int64)
-            starts = np.empty(n, dtype=np.int64)
-            scan = np.empty(n, dtype=bool)
-            idle = np.empty(n, dtype=bool)
-            expect = np.empty(n, dtype=np.int64)
-            for j, (pipe, _, a, _, sc) in enumerate(ready):
-                slot = self._slot(pipe)
-                held.append(slot)
-                slots[j] = slot.index
-                starts[j] = a
-                scan[j] = sc
+            starts, scan, idle, expect = [], [], [], []
+            for pipe, _, a, _, sc in ready:
+                held.append(self._slot(pipe))
+                starts.append(a)
+                scan.append(sc)
                 result = pipe.recon.fusion.result
-                idle[j] = not result.in_contact
-                expect[j] = result.taxels_used
+                idle.append(not result.in_contact)
+                expect.append(result.taxels_used)
+            slots = np.array([slot.index for slot in held], dtype=np.int64)
             out = np.empty((n, 5), dtype=np.int64)
             t1 = time.perf_counter()
             kern.quiet_batch(
                 view.delta_c,
                 view.status,
-                starts,
+                np.array(starts, dtype=np.int64),
                 slots,
-                scan,
-                idle,
-                expect,
+                np.array(scan, dtype=bool),
+                np.array(idle, dtype=bool),
+                np.array(expect, dtype=np.int64),
                 self.unusable,
                 *self.lists.values(),
                 out,
@@ -207,6 +202,7 @@ class QuietBatch:
             t2 = time.perf_counter()
             share = ((t1 - t0) / n, (t2 - t1) / n, 0.0)
             now = time.monotonic()
+            answers = out.tolist()
         j = 0
         for pipe, stamp, a, b, sc in items:
             if sc < 0:
@@ -214,7 +210,7 @@ class QuietBatch:
                     stamp, view.taxel_ids[a:b], view.delta_c[a:b], view.status[a:b], contact=False
                 )
             else:
-                code, w, valid, fast, learnt = (int(v) for v in out[j])  # type: ignore[index]
+                code, w, valid, fast, learnt = answers[j]
                 slot = held[j]
                 j += 1
                 if fast:
