@@ -279,54 +279,90 @@ def test_weights_follow_the_per_taxel_noise(tables):
     assert fit.force == pytest.approx(1.5, rel=1e-2)
 
 
-def _posterior_reference(tables, xy, d, fit, sigma, half, step, near):
+def _posterior_reference(tables, xy, d, fit, sigma, half, step, near, t):
     """posterior_contact by its definition, in numpy: np.interp along each tabulated row, the
-    force's closed-form optimum, weights exp(−χ²/2)·a over the whole lattice."""
+    force's closed-form optimum, weights exp(−χ²/2)·a^(1−t) over the whole lattice; with t > 0,
+    when the mean centre rounds to another lattice point, again over the lattice's bounding
+    box grown to cover it moved there."""
     local = np.hypot(*(xy - fit.center).T) <= near
     xy, d = xy[local], d[local]
-    offsets = np.arange(-half, half + step / 2, step)
-    centres = np.array([(fit.center[0] + u, fit.center[1] + v) for u in offsets for v in offsets])
+    n = round(half / step)
     r_j = np.arange(tables.table.shape[2]) * tables.step
-    rows = []
-    for f in range(len(FAMILIES)):
-        for k, a in enumerate(tables.radii):
-            for c in centres:
-                resp = np.interp(np.hypot(*(xy - c).T), r_j, tables.table[f, k], right=0.0)
-                num, den = resp @ d, resp @ resp
-                if num > 0 and den > 0:
-                    cost = (d @ d - num * num / den) / sigma**2
-                    rows.append((f, a, c, num / den, cost))
-    best = min(r[4] for r in rows)
-    w = np.array([np.exp(-0.5 * (r[4] - best)) * r[1] for r in rows])
-    w /= w.sum()
-    mean_c = w @ np.array([r[2] for r in rows])
-    family_mass = [w[[r[0] == f for r in rows]].sum() for f in range(len(FAMILIES))]
-    return (
-        np.exp(w @ np.log([r[3] for r in rows])),
-        mean_c,
-        np.exp(w @ np.log([r[1] for r in rows])),
-        int(np.argmax(family_mass)),
-    )
+
+    def mean(lo, hi):
+        centres = np.array(
+            [
+                (fit.center[0] + u * step, fit.center[1] + v * step)
+                for u in range(lo[0], hi[0] + 1)
+                for v in range(lo[1], hi[1] + 1)
+            ]
+        )
+        rows = []
+        for f in range(len(FAMILIES)):
+            for k, a in enumerate(tables.radii):
+                for c in centres:
+                    resp = np.interp(np.hypot(*(xy - c).T), r_j, tables.table[f, k], right=0.0)
+                    num, den = resp @ d, resp @ resp
+                    if num > 0 and den > 0:
+                        cost = (d @ d - num * num / den) / sigma**2
+                        rows.append((f, a, c, num / den, cost))
+        best = min(r[4] for r in rows)
+        w = np.array([np.exp(-0.5 * (r[4] - best)) * r[1] ** (1.0 - t) for r in rows])
+        w /= w.sum()
+        family_mass = [w[[r[0] == f for r in rows]].sum() for f in range(len(FAMILIES))]
+        return (
+            np.exp(w @ np.log([r[3] for r in rows])),
+            w @ np.array([r[2] for r in rows]),
+            np.exp(w @ np.log([r[1] for r in rows])),
+            int(np.argmax(family_mass)),
+        )
+
+    first = mean((-n, -n), (n, n))
+    k = np.rint((first[1] - np.asarray(fit.center)) / step).astype(int)
+    if t == 0.0 or not k.any():
+        return first
+    return mean(tuple(np.minimum(-n, k - n)), tuple(np.maximum(n, k + n)))
 
 
-@pytest.mark.parametrize(("where", "force"), [((0.0, 0.0), 0.4), ((1.1e-3, -0.7e-3), 1.5)])
-def test_posterior_is_its_definition(tables, where, force):
+@pytest.mark.parametrize(
+    ("where", "force", "off", "t"),
+    [
+        ((0.0, 0.0), 0.4, (3e-4, -2e-4), 0.0),
+        ((1.1e-3, -0.7e-3), 1.5, (3e-4, -2e-4), 0.0),
+        ((0.0, 0.0), 0.4, (1.2e-3, 0.7e-3), 0.0),  # the mean 2 steps away, t = 0: not grown
+        ((0.0, 0.0), 0.4, (3e-4, -2e-4), 1.0),
+        ((1.1e-3, -0.7e-3), 1.5, (3e-4, -2e-4), 0.4),
+        ((0.0, 0.0), 0.4, (1.2e-3, 0.7e-3), 1.0),  # the mean 2 lattice steps away: grown
+        ((0.0, 0.0), 0.4, (1.2e-3, 0.7e-3), 0.6),
+    ],
+)
+def test_posterior_is_its_definition(tables, where, force, off, t):
     """The compiled lattice and its reduction against a plain-numpy evaluation of the model in
-    the docstring, on noisy readings of an off-lattice Hertz contact."""
+    the docstring, on noisy readings of an off-lattice Hertz contact, from a fit ``off`` [m]
+    beside it, with the radius prior's blend ``t`` (log_prior)."""
     g = np.arange(-3, 4) * 3e-3
     xy = np.array([(x + 0.5e-3 * (y / 3e-3 % 2), y) for x in g for y in g])
     truth = RoundFit(force, where, 1, 2.2e-3, 0.0)
     rng = np.random.default_rng(2)
     sigma = 4e-6
     d = tables.predict(truth, xy) + rng.normal(0.0, sigma, len(xy))
-    start = RoundFit(force * 1.1, (where[0] + 3e-4, where[1] - 2e-4), 1, 2.0e-3, 0.0)
-    got = posterior_contact(tables, xy, d, start, sigma, half=1e-3, step=5e-4, near=0.012)
-    f, c, a, fam = _posterior_reference(tables, xy, d, start, sigma, 1e-3, 5e-4, 0.012)
+    start = RoundFit(force * 1.1, (where[0] + off[0], where[1] + off[1]), 1, 2.0e-3, 0.0)
+    got = posterior_contact(
+        tables, xy, d, start, sigma, half=1e-3, step=5e-4, near=0.012, log_prior=t
+    )
+    f, c, a, fam = _posterior_reference(tables, xy, d, start, sigma, 1e-3, 5e-4, 0.012, t)
     assert got.force == pytest.approx(f, rel=1e-9)
     assert np.allclose(got.center, c, rtol=0, atol=1e-12)
     assert got.radius == pytest.approx(a, rel=1e-9)
     assert got.family == fam
     assert got.residual == start.residual
+
+
+def test_posterior_prior_blend_is_checked(tables):
+    """log_prior outside [0, 1] is refused, naming it."""
+    fit = RoundFit(1.0, (0.0, 0.0), 1, 2.0e-3, 0.0)
+    with pytest.raises(ValueError, match="log_prior"):
+        posterior_contact(tables, SQUARE, np.zeros(len(SQUARE)), fit, 1e-6, log_prior=1.5)
 
 
 def test_round_refinement_in_the_reconstructor(tmp_path):

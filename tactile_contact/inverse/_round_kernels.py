@@ -285,18 +285,21 @@ def _lattice_costs(table, t0, dt, step, xy, d, w2, centres, radius_index):  # pr
 
 
 #: Lattice points whose cost exceeds the best by more than this (χ² units) are left out of
-#: the posterior: their weight e^(−Δ/2)·a is below 1e-19 of the best point's (a varies 24-fold
-#: over the radii), so the 6272 points of a lattice cannot add 1e-14 to any sum; evaluating
-#: exp and log for each of them took half the kernel's time.
+#: the posterior: their weight e^(−Δ/2)·a^k (k ≤ 1) is below 1e-19 of the best point's (a
+#: varies 24-fold over the radii), so the 6272 points of a lattice cannot add 1e-14 to any
+#: sum; evaluating exp and log for each of them took half the kernel's time.
 NEGLIGIBLE_COST = 90.0
 
 
 @numba.njit(**_JIT)
-def posterior_mean(rows, log_radius, family, step, xy, d, w2, centres):  # pragma: no cover
-    """Posterior over profiles × centres, weights exp(−cost/2)·a where the force is positive
-    (cost: the weighted squared residual at the non-negative optimal force; a: the contact
-    radius): (mass, mean log F, mean x, mean y [m], mean log a, family of most mass); mass
-    0.0 when no force is positive.
+def posterior_mean(
+    rows, log_radius, family, step, xy, d, w2, centres, radius_power
+):  # pragma: no cover
+    """Posterior over profiles × centres, weights exp(−cost/2)·a^``radius_power`` where the
+    force is positive (cost: the weighted squared residual at the non-negative optimal force;
+    a: the contact radius; the tabulated radii are log-spaced, so power 0 is a prior uniform
+    in log a, 1 one uniform in a): (mass, mean log F, mean x, mean y [m], mean log a, family
+    of most mass); mass 0.0 when no force is positive.
 
     ``rows`` (J, P): the responses of P profiles (:meth:`RoundTables.profile_rows`) at
     distances j·``step``, distance-major so that one taxel's look-ups over every profile are
@@ -348,7 +351,7 @@ def posterior_mean(rows, log_radius, family, step, xy, d, w2, centres):  # pragm
     for c in range(n_c):
         for p in range(n_p):
             if force[c, p] > 0.0 and cost[c, p] - best < NEGLIGIBLE_COST:
-                w = math.exp(log_radius[p] - 0.5 * (cost[c, p] - best))
+                w = math.exp(radius_power * log_radius[p] - 0.5 * (cost[c, p] - best))
                 mass[family[p]] += w
                 log_f += w * math.log(force[c, p])
                 x += w * centres[c, 0]

@@ -78,6 +78,29 @@ ROUND_MODEL_ERROR = 0.05
 #: without the floor, 8.3 % with it, 7.0 % at one count/√6 — which at 0.5-count noise gave
 #: 4.6 % against 4.5 %, and 0.5 N 11.8 against 9.5 %.)
 FUSED_POSTERIOR_FLOOR = 1.0 / 3.0
+#: The posterior's prior over the contact radius blends from weights ∝ a to uniform in log a
+#: (round_contact.posterior_contact's ``log_prior`` t) with the readings' noise σ as the
+#: stage knows it (the caller's, or the far taxels' measured RMS where above the model's):
+#: t = clip((σ/σ_q − LOG_PRIOR_FROM)/LOG_PRIOR_SPAN, 0, 1), σ_q = one count/√6, the
+#: rounding's own error. Where the readings are no noisier than the driver hands them on,
+#: the prior ∝ a stays, bit for bit: 0.15-count readings (the bag, bench_icub) measure
+#: 0.03 count far, σ stays the model's σ_q (σ/σ_q = 1); the driver's readings (0.3 count of
+#: noise and 0.3 of baseline offset, bench_icub "driver readings") measure σ/σ_q 1.29
+#: median, 1.57 at most, and log a made them worse there (forearm single contacts median
+#: 9.4 → 14.8 %). Beyond, noise widens the likelihood and the prior decides over a light
+#: press's valley: it must not favour broad contacts (8-bit at 1 count, σ/σ_q ≈ 2.55: the
+#: worst press 2.49 → 1.73× its force; docs/reconstruction.md). Full from 2.1 σ_q (≈ 0.8
+#: count of converter noise); linear between so that no noise level flips the output.
+LOG_PRIOR_FROM = 1.6
+LOG_PRIOR_SPAN = 0.5
+
+
+def log_prior_blend(noise: float, count_sigma: float) -> float:
+    """The posterior's ``log_prior`` t in [0, 1] for readings of noise ``noise`` [m] whose
+    rounding error is ``count_sigma`` [m] (one count/√6): 0 up to LOG_PRIOR_FROM σ_q, 1 from
+    LOG_PRIOR_FROM + LOG_PRIOR_SPAN, linear between."""
+    t = (noise / count_sigma - LOG_PRIOR_FROM) / LOG_PRIOR_SPAN
+    return float(min(max(t, 0.0), 1.0))
 
 
 @dataclass(frozen=True)
@@ -90,11 +113,16 @@ class Followed:
             search found; a followed fit may exceed it by FOLLOW_SLACK + FOLLOW_SLACK_SHARE of
             it.
         age: frames followed since that search.
+        noise: the readings' noise [m] that search assigned them (the caller's, or measured
+            at the far taxels); followed frames of readings whose noise was not passed blend
+            the posterior's radius prior by it too (:func:`log_prior_blend`), so that the
+            prior does not change between searched and followed frames of one press.
     """
 
     fit: RoundFit
     misfit: float
     age: int
+    noise: float = 0.0
 
     @property
     def current(self) -> bool:
@@ -205,7 +233,7 @@ class ContactFit:
                 slack = FOLLOW_SLACK + FOLLOW_SLACK_SHARE * previous.misfit
                 if misfit <= min(limit, previous.misfit + slack):
                     fits = [single]
-                    followed = Followed(single, previous.misfit, previous.age + 1)
+                    followed = Followed(single, previous.misfit, previous.age + 1, previous.noise)
         fitter = _FrameFitter(
             self.tables,
             self.count_sigma,
@@ -235,7 +263,7 @@ class ContactFit:
             if misfit > limit:
                 return None
             if len(fits) == 1:
-                followed = Followed(fits[0], misfit, 0)
+                followed = Followed(fits[0], misfit, 0, float(np.median(s)))
         # The test above is on the least-squares fit (the least χ² the model reaches), not on
         # the posterior mean: the mean of a curved valley lies off its floor, and on the load
         # bench's 12 mm sphere it missed the test by a few percent where the fit passed it
@@ -245,7 +273,13 @@ class ContactFit:
             # (round_contact.posterior_contact) instead of the least-squares point. Its error is
             # the rounding's (one count/√6), not the learnt noise level: unless the contact is
             # followed, the same readings give the same contact whatever frames came before.
-            fits = [posterior_contact(self.tables, xy, d, fits[0], post)]
+            noise = float(np.median(s))
+            if estimate and followed is not None and followed.age > 0:
+                # A followed frame does not measure the noise again: the last search's.
+                noise = max(noise, followed.noise)
+                post = max(post, followed.noise)
+            t = log_prior_blend(noise, self.count_sigma)
+            fits = [posterior_contact(self.tables, xy, d, fits[0], post, log_prior=t)]
             pred = fitter.predicted(fits, xy)
         return RoundContacts(fits, float(np.linalg.norm(pred - d)), followed)
 
