@@ -66,16 +66,20 @@ def readings(lay: Patch, d: NDArray, tier: str, rng: np.random.Generator) -> NDA
 
 
 def noise_of(lay: Patch, d: NDArray, tier: str) -> NDArray | float:
-    """(N, 1) or scalar compression noise [m] of the tier (8-bit: converter noise and rounding
-    at small readings)."""
+    """Compression noise [m] of the tier: float (N, 1) per press (``peak``) or (N, K) per
+    reading (``reading``: float_sigma); 8-bit a scalar (converter noise and rounding at small
+    readings)."""
     if tier == "float":
         return float_sigma(d)
     return float(lay.to_deflection(np.array([lay.lsb]))[0]) * math.hypot(COUNT_NOISE, 12**-0.5)
 
 
 def clear_of(lay: Patch, d: NDArray, tier: str) -> NDArray[np.bool_]:
-    """(N,) presses whose ideal matched-filter statistic ‖δ/σ‖ is at least CLEAR."""
-    return np.linalg.norm(d / noise_of(lay, d, tier), axis=1) >= CLEAR
+    """(N,) presses whose ideal matched-filter statistic ‖δ/σ‖ is at least CLEAR, σ the
+    press's peak-scaled noise for the float tier in either mode (per reading, every touched
+    taxel reads 100 σ and every press would count as clear)."""
+    sigma = NOISE_REL * np.abs(d).max(axis=1, keepdims=True) if tier == "float" else None
+    return np.linalg.norm(d / (noise_of(lay, d, tier) if sigma is None else sigma), axis=1) >= CLEAR
 
 
 def quantised(dc: NDArray, lsb: float, rms: float, rng: np.random.Generator) -> NDArray:
