@@ -439,7 +439,7 @@ OUT_CODE, OUT_WINDOW, OUT_VALID, OUT_FAST, OUT_LEARNT = range(5)
 
 @numba.njit(**_JIT)
 def quiet_batch(
-    dc, status, starts, slots, scan, idle, expect, unusable, f1, i1, f2, i2, b1, out
+    dc, status, starts, ends, slots, scan, idle, expect, unusable, f1, i1, f2, i2, b1, out
 ):  # pragma: no cover - compiled
     """:func:`quiet_frame` for each of a batch's quiet patches in one call (contact_
     reconstruction's ContactBatches: an idle patch-frame's Python was most of its cost), and
@@ -447,7 +447,8 @@ def quiet_batch(
 
     Args:
         dc, status: the batch's ΔC [F] and status flags, every patch's rows one after the
-            other (the message's arrays); starts: (P,) each patch's first row.
+            other (the message's arrays); starts, ends: (P,) each patch's first row and the
+            row after its last (a message may carry taxels its bundle lacks: disabled ones).
         slots: (P,) each patch's slot in the typed lists f1, i1, f2, i2 (nbr), b1 (layout:
             the F1_*, I1_*, F2_*, B1_* constants; its fusion's and its noise tracker's own
             arrays, changed in place as quiet_frame and learn_noise change them).
@@ -461,15 +462,14 @@ def quiet_batch(
     """
     for p in range(slots.shape[0]):
         s = slots[p]
-        a = starts[p]
+        a, e = starts[p], ends[p]
         perm = i1[I1 * s + I1_PERM]
-        k = perm.shape[0]
         x = F1 * s
         delta = f1[x + F1_DELTA]
         ok = b1[B1 * s + B1_OK]
         code, w, valid = quiet_frame(
-            dc[a : a + k],
-            status[a : a + k],
+            dc[a:e],
+            status[a:e],
             perm,
             unusable,
             f1[x + F1_CONVERT],

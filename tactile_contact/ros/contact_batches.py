@@ -216,7 +216,11 @@ class ContactBatches:
                 )
                 add_row(rows, pipe, stamp, result)
             else:
-                items.append((pipe, stamp, a, b, pipe.batch_ready(view.taxel_ids[a:b])))
+                # A patch twice in one batch (never from the driver): its second frame must
+                # see the state the first leaves, so it takes the full path after it.
+                twice = any(it[0] is pipe for it in items)
+                ready = -1 if twice else pipe.batch_ready(view.taxel_ids[a:b])
+                items.append((pipe, stamp, a, b, ready))
         if items:
             quiet.run(view, items, rows, add_row)  # type: ignore[union-attr]
         return rows

@@ -98,6 +98,7 @@ class QuietBatch:
             np.frombuffer(bytes(1), np.uint8),
             none,
             none,
+            none,
             no,
             no,
             none,
@@ -176,10 +177,11 @@ class QuietBatch:
         held: list[_Slot] = []
         share, now = (0.0, 0.0, 0.0), 0.0
         if n:
-            starts, scan, idle, expect = [], [], [], []
-            for pipe, _, a, _, sc in ready:
+            starts, ends, scan, idle, expect = [], [], [], [], []
+            for pipe, _, a, b, sc in ready:
                 held.append(self._slot(pipe))
                 starts.append(a)
+                ends.append(b)
                 scan.append(sc)
                 result = pipe.recon.fusion.result
                 idle.append(not result.in_contact)
@@ -191,6 +193,7 @@ class QuietBatch:
                 view.delta_c,
                 view.status,
                 np.array(starts, dtype=np.int64),
+                np.array(ends, dtype=np.int64),
                 slots,
                 np.array(scan, dtype=bool),
                 np.array(idle, dtype=bool),
