@@ -9,6 +9,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -29,17 +30,34 @@ def test_two_interrupts_end_a_node_quietly(gap_s: float) -> None:
         text=True,
         start_new_session=True,
     )
+    lines: list[str] = []
+    started = threading.Event()
+
+    def read() -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            lines.append(line)
+            started.set()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
     try:
-        time.sleep(3.0)  # running (no bundles here: it serves nothing, but spins)
-        assert proc.poll() is None, proc.communicate()[0]
+        # Its first log line comes from the node being built, so its modules are imported and
+        # run_node's handling is in place (a Ctrl-C during `import` is Python's, before any
+        # code of ours: on a saturated machine the imports took over 3 s, the fixed wait here).
+        assert started.wait(60.0), "the node printed nothing in 60 s"
+        time.sleep(1.0)
+        assert proc.poll() is None, "".join(lines)
         os.kill(proc.pid, signal.SIGINT)
         if gap_s:
             time.sleep(gap_s)
         os.kill(proc.pid, signal.SIGINT)
-        out = proc.communicate(timeout=30.0)[0]
+        proc.wait(timeout=30.0)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+        reader.join(timeout=5.0)
+    out = "".join(lines)
     assert proc.returncode == 0, out
     assert "Traceback" not in out, out
