@@ -35,6 +35,9 @@ if TYPE_CHECKING:  # (calibrate imports this module)
 #: Relative steps of the layer scale and the contact radii; step of b² [m²].
 STEP_REL = 1e-2
 STEP_AREA = 1e-7
+#: Rounds of choosing each unnamed press's family again at the polished response
+#: (:func:`free_fit`; 3 took the example in its comment from 1.7 % to 1.03 %).
+REFAMILY_ROUNDS = 4
 #: Parameters of θ, in the order of the Jacobian's first columns.
 PARAMS = ("gain", "footprint_radius", "layer_scale")
 
@@ -343,6 +346,20 @@ def free_fit(
         fam, rad = both_families(model, s0, f0, g0)
         s1, f1, g1, rad, jac, res = polish(model, s0, f0, g0, fam, rad, bounds=lims)
         c = float(res @ res)
+        # Each press's family was chosen at the start's response; the polish moves the
+        # response and may leave presses with the wrong one, which the response then
+        # compensates (issue 26, 1 % noise per reading, 2 mm electrode, gain 1.15: gain 1.012,
+        # layer 1.091 at 1.7 % residual, where the truth's own point gives 1.0 %). Choose
+        # again at the polished response and polish from there while that lowers the residual.
+        for _ in range(REFAMILY_ROUNDS):
+            fam2, rad2 = both_families(model, s1, f1, g1)
+            if np.array_equal(fam2, fam):
+                break
+            cand = polish(model, s1, f1, g1, fam2, rad2, bounds=lims)
+            c2 = float(cand[5] @ cand[5])
+            if not c2 < c:
+                break
+            (s1, f1, g1, rad, jac, res), fam, c = cand, fam2, c2
         fits.append((c, s1, f1, g1, fam, rad, jac, res))
         starts.append(
             {
