@@ -1,0 +1,106 @@
+"""A node whose shutdown gets stuck in a library still ends, says where, and in bounded time.
+
+CI saw worker_monitor hang after Ctrl-C under ros2 launch (SIGTERM 5 s later did nothing:
+rclpy's handler only shuts the context down; SIGKILL after 15 s). The cause was not found; what
+run_node guarantees instead (common.exit_if_stuck): STUCK_AFTER_S after the shutdown began, the
+process prints where its main thread is and exits with the code the shutdown was going to end
+with; and, a second later, faulthandler's C thread dumps every thread and exits 1, for a hang
+that holds the GIL (the Python watcher cannot run then).
+
+The stuck cleanup is injected into a real node run by the real run_node, in its own process,
+ended by a real SIGINT: a WorkerMonitor subclass whose destroy_node blocks (the fault injection
+only; run_node is what is tested).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+ROOT = Path(__file__).resolve().parents[1]
+
+_STUCK_NODE = """
+import re, sys, threading
+from tactile_contact.ros import common
+from tactile_contact.ros.worker_monitor import WorkerMonitor
+
+class StuckOnDestroy(WorkerMonitor):
+    def destroy_node(self):
+        if sys.argv[1] == "lock":
+            threading.Event().wait()  # waits with the GIL released, forever
+        else:
+            # a C call that never gives the GIL back (a deadlock inside an extension looks so)
+            re.match(r"(a|aa)+$", "a" * 200 + "b")
+        return super().destroy_node()
+
+common.run_node("worker_monitor", StuckOnDestroy, [])
+"""
+
+
+def _run_and_interrupt(how: str) -> tuple[int, str, float]:
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _STUCK_NODE, how],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+    )
+    lines: list[str] = []
+    started = threading.Event()
+
+    def read() -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            lines.append(line)
+            if "parameters:" in line:
+                started.set()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        assert started.wait(60.0), "".join(lines)
+        time.sleep(0.5)
+        assert proc.poll() is None, "".join(lines)
+        start = time.monotonic()
+        os.kill(proc.pid, signal.SIGINT)
+        proc.wait(timeout=60.0)
+        took = time.monotonic() - start
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        reader.join(timeout=5.0)
+    return proc.returncode, "".join(lines), took
+
+
+def test_a_cleanup_stuck_with_the_gil_released_ends_with_its_code_and_says_where() -> None:
+    from tactile_contact.ros.common import STUCK_AFTER_S
+
+    code, out, took = _run_and_interrupt("lock")
+    assert code == 0, out
+    assert "worker_monitor: still shutting down 4 s after it began" in out, out
+    assert "node.destroy_node()" in out and "in destroy_node" in out and "in wait" in out, out
+    # the watcher's time, plus a loaded machine's slack; never ros2 launch's 15 s to SIGKILL
+    assert STUCK_AFTER_S <= took < STUCK_AFTER_S + 6.0, (took, out)
+
+
+def test_a_cleanup_stuck_holding_the_gil_is_dumped_and_ended_by_faulthandler() -> None:
+    from tactile_contact.ros.common import STUCK_AFTER_S
+
+    code, out, took = _run_and_interrupt("gil")
+    assert code == 1, out
+    assert "Timeout (0:00:05)!" in out, out
+    assert "in destroy_node" in out, out
+    assert "still shutting down" not in out, out  # the Python watcher never got the GIL
+    assert STUCK_AFTER_S + 1.0 <= took < STUCK_AFTER_S + 8.0, (took, out)
