@@ -81,6 +81,21 @@ def add_row(rows: ContactRows, pipe: Any, stamp_ns: int, result: Any) -> None:
         rows.contact_patch.append(k)
 
 
+def full_frame(pipe: Any, stamp_ns: int, view: Any, a: int, b: int) -> Any:
+    """``pipe``'s frame of a batch (``view``'s rows ``a`` to ``b``) by PatchPipeline.frame;
+    None (a FAILED row) if it raised: counted and said as PatchPipeline.internal_error
+    does, and the batch's other patches go on (re-raised once the context is shut down)."""
+    try:
+        return pipe.frame(
+            stamp_ns, view.taxel_ids[a:b], view.delta_c[a:b], view.status[a:b], contact=False
+        )
+    except Exception as exc:
+        if not pipe.node.context.ok():
+            raise
+        pipe.internal_error(exc)
+        return None
+
+
 class ContactBatches:
     """The ``contacts`` publisher and, with ``input: batches``, the ``taxel_batches`` input.
 
@@ -107,7 +122,10 @@ class ContactBatches:
         self.coalesced = 0
         #: A batch's idle and held patch-frames go through one compiled call (None: each by
         #: PatchPipeline.frame; the same results, test/test_quiet_batch.py).
-        self.quiet: QuietBatch | None = QuietBatch(int(_UNUSABLE))
+        self.quiet: QuietBatch | None = QuietBatch(
+            int(_UNUSABLE),
+            lambda text: node.get_logger().error(text, throttle_duration_sec=5.0),
+        )
         self.sub: Any = None
         if batches:
             qos = QoSProfile(depth=BATCH_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -201,6 +219,7 @@ class ContactBatches:
         ):
             quiet = None
         items = []
+        taken: set[str] = set()  # (the patches in items)
         for i, name in enumerate(view.patches):
             pipe = pipelines.get(name)
             if pipe is None or name not in serving:
@@ -211,15 +230,17 @@ class ContactBatches:
             newest[name] = stamp
             a, b = off[i], off[i + 1]
             if quiet is None:
-                result = pipe.frame(
-                    stamp, view.taxel_ids[a:b], view.delta_c[a:b], view.status[a:b], contact=False
-                )
-                add_row(rows, pipe, stamp, result)
+                add_row(rows, pipe, stamp, full_frame(pipe, stamp, view, a, b))
             else:
                 # A patch twice in one batch (never from the driver): its second frame must
                 # see the state the first leaves, so it takes the full path after it.
-                twice = any(it[0] is pipe for it in items)
-                ready = -1 if twice else pipe.batch_ready(view.taxel_ids[a:b])
+                ready = -1
+                if name not in taken:
+                    taken.add(name)
+                    try:
+                        ready = pipe.batch_ready(view.taxel_ids[a:b])
+                    except Exception as exc:  # (its full path says what is wrong, or fails)
+                        quiet.fault(f"patch {name}'s check", exc)
                 items.append((pipe, stamp, a, b, ready))
         if items:
             quiet.run(view, items, rows, add_row)  # type: ignore[union-attr]
@@ -250,4 +271,6 @@ class ContactBatches:
             # frames a batch's compiled call took with nothing more, and with Python after
             "frames_batch_held": self.quiet.held if self.quiet is not None else 0,
             "frames_batch_rest": self.quiet.rest if self.quiet is not None else 0,
+            # the compiled call's faults (its frames taken by the full path, nothing lost)
+            "quiet_batch_errors": self.quiet.errors if self.quiet is not None else 0,
         }

@@ -455,10 +455,14 @@ class ContactReconstructionNode(Node):
             "cpu_time_s": time.process_time(),
         }
         served = f"serving {len(link.serving)} of {len(link.given)} patches"
-        level = WARN if problem or self.batches.bad_batches else OK
+        quiet = self.batches.quiet
+        faults = self.batches.bad_batches + (quiet.errors if quiet is not None else 0)
+        level = WARN if problem or faults else OK
         message = f"{served}; {text}" if text else served
         if self.batches.last_error:
             message += f"; last bad batch: {self.batches.last_error}"
+        if quiet is not None and quiet.last_error:
+            message += f"; last {quiet.last_error}"
         name = f"contact_reconstruction: worker {me.worker}"
         return diagnostic_status(name, level, message, values, me.worker)
 

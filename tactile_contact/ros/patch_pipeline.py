@@ -300,8 +300,15 @@ class PatchPipeline:
         except Exception as exc:
             if not self.node.context.ok():
                 return  # (a Ctrl-C shut the context down under this frame)
-            self.stats.internal_errors += 1
-            self._fault("internal error", f"{type(exc).__name__}: {exc}; frame dropped")
+            self.internal_error(exc)
+
+    def internal_error(self, exc: Exception) -> None:
+        """A frame of this patch that raised ``exc`` (a bug, or a reading the code did not
+        foresee): counted (``internal_errors`` in /diagnostics), said (once per 5 s) and the
+        frame dropped. The same report whichever path took the frame (a TaxelArray, a
+        batch's loop or its compiled call); the other patches go on."""
+        self.stats.internal_errors += 1
+        self._fault("internal error", f"{type(exc).__name__}: {exc}; frame dropped")
 
     def _fault(self, kind: str, text: str, warn: bool = False) -> None:
         """Record a fault for /diagnostics and log it (once per 5 s per patch and kind)."""

@@ -9,17 +9,26 @@ patch, refreshed when the fusion replaces an array), and returns which of them n
 a change, an idle scan's pick, a count that differs. The others only count (PatchPipeline.
 batch_held); every patch's results, counters and learnt noise stay those of its own path
 (test/test_quiet_batch.py).
+
+A fault stays with its patch, as in the batch's loop without this call (contact_batches.
+full_frame): a patch whose Python step raises gets a FAILED row, its ``internal_errors``
+counted and said; the other patches' rows are what they would be. A compiled call that
+raises (a typed list of the wrong type, say) is said once, counted (``errors``), its typed
+lists are made again on the next batch, and the batch's frames it did not finish take the
+full path.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from tactile_contact.inverse import _temporal_kernels as kern
+from tactile_contact.ros.contact_batches import full_frame
 
 
 @dataclass
@@ -44,12 +53,20 @@ def _vector(a: Any, dtype: Any) -> np.ndarray:
     return a
 
 
+def _text(exc: Exception, most: int = 300) -> str:
+    """``exc`` in one line of at most ``most`` characters (numba's typing errors run to
+    dozens of lines)."""
+    text = " ".join(f"{type(exc).__name__}: {exc}".split())
+    return text if len(text) <= most else text[: most - 1] + "…"
+
+
 class QuietBatch:
     """The typed lists of every served patch's arrays, and the call over a batch's quiet
     frames (:meth:`run`)."""
 
-    def __init__(self, unusable: int) -> None:
+    def __init__(self, unusable: int, log: Callable[[str], None] | None = None) -> None:
         self.unusable = int(unusable)  # the status flags that leave a taxel out
+        self._log = log  # (an error's one line: the node's logger)
         # numba typed lists (made and changed by compiled calls: kern.list_of, list_add,
         # list_set), None until the first slot; their lengths.
         self.lists: dict[str, Any] = dict.fromkeys(("f1", "i1", "f2", "i2", "b1"))
@@ -59,6 +76,10 @@ class QuietBatch:
         #: Frames that went by the compiled call and needed nothing more, and those that did.
         self.held = 0
         self.rest = 0
+        #: Faults of the compiled path (a compiled call that raised, a slot that could not be
+        #: made: their frames taken by the full path), the last one's text.
+        self.errors = 0
+        self.last_error = ""
 
     def _slot(self, pipe: Any) -> _Slot:
         """``pipe``'s slot, made or refreshed so that it holds the arrays in use now."""
@@ -69,20 +90,28 @@ class QuietBatch:
         if slot is None or any(a is not b for a, b in zip(slot.owner, owner, strict=True)):
             slot = self._make(pipe, slot)
         window_ok, q = fusion.batch_replaced()
+        # (each array put in its list before the slot notes it: one refused is tried again)
         if slot.window_ok is not window_ok:  # (replaced by a change)
-            slot.window_ok = window_ok
             self._put("b1", kern.B1 * slot.index + kern.B1_WINDOW_OK, _vector(window_ok, bool))
+            slot.window_ok = window_ok
         if slot.q is not q:  # (replaced by a re-solve)
-            slot.q = q
             self._put("f2", kern.F2 * slot.index + kern.F2_Q, _vector(q, np.float64))
+            slot.q = q
         x = kern.F1 * slot.index
         if slot.sigma is not sigma:
-            slot.sigma = sigma
             self._put("f1", x + kern.F1_SIGMA, _vector(sigma, np.float64))
+            slot.sigma = sigma
         if slot.noise_sigma is not noise.sigma:
-            slot.noise_sigma = noise.sigma
             self._put("f1", x + kern.F1_NOISE_SIGMA, _vector(noise.sigma, np.float64))
+            slot.noise_sigma = noise.sigma
         return slot
+
+    def _forget(self) -> None:
+        """Every slot and typed list dropped: made again from the patches' arrays by the
+        next batch (after a compiled call that raised: the lists may be what made it)."""
+        self.lists = dict.fromkeys(self.lists)
+        self._sizes = dict.fromkeys(self.lists, 0)
+        self._slots = {}
 
     def _warm(self) -> None:
         """Load the compiled calls (numba's disk cache) now, on the types a batch brings, not
@@ -169,53 +198,71 @@ class QuietBatch:
     def run(self, view: Any, items: list, rows: Any, add_row: Any) -> None:
         """A batch's frames: ``items`` (pipe, stamp [ns], first row, end row, batch_ready's
         answer) in the batch's order; those ready go by one compiled call, the others by
-        PatchPipeline.frame; each one's row appended to ``rows`` (``add_row``) in order."""
+        PatchPipeline.frame; each one's row appended to ``rows`` (``add_row``) in order.
+
+        A frame whose Python raises: its row FAILED, the error the patch's
+        (PatchPipeline.internal_error), the others unchanged. A slot that cannot be made
+        (an array of an unforeseen type): that frame by the full path. A compiled call that
+        raises: said, counted, the frames it did not finish by the full path."""
         t0 = time.perf_counter()
-        ready = [it for it in items if it[4] >= 0]
-        n = len(ready)
-        answers: list = []
+        ready: list[int] = []  # (items' indices: the frames the call takes)
         held: list[_Slot] = []
+        for k, (pipe, _, _, _, sc) in enumerate(items):
+            if sc < 0:
+                continue
+            try:
+                held.append(self._slot(pipe))
+            except Exception as exc:
+                self.fault(f"patch {pipe.name}'s slot", exc)
+                continue
+            ready.append(k)
+        n = len(ready)
+        answers: dict[int, list] = {}
+        slots: dict[int, _Slot] = {}
         share, now = (0.0, 0.0, 0.0), 0.0
         if n:
-            starts, ends, scan, idle, expect = [], [], [], [], []
-            for pipe, _, a, b, sc in ready:
-                held.append(self._slot(pipe))
-                starts.append(a)
-                ends.append(b)
-                scan.append(sc)
-                result = pipe.recon.fusion.result
-                idle.append(not result.in_contact)
-                expect.append(result.taxels_used)
-            slots = np.array([slot.index for slot in held], dtype=np.int64)
-            out = np.empty((n, 5), dtype=np.int64)
-            t1 = time.perf_counter()
-            kern.quiet_batch(
-                view.delta_c,
-                view.status,
-                np.array(starts, dtype=np.int64),
-                np.array(ends, dtype=np.int64),
-                slots,
-                np.array(scan, dtype=bool),
-                np.array(idle, dtype=bool),
-                np.array(expect, dtype=np.int64),
-                self.unusable,
-                *self.lists.values(),
-                out,
-            )
+            pick = [items[k] for k in ready]
+            out = np.full((n, 5), -1, dtype=np.int64)  # (OUT_FAST -1: not reached)
+            t1 = t0
+            try:
+                args = (
+                    view.delta_c,
+                    view.status,
+                    np.array([it[2] for it in pick], dtype=np.int64),
+                    np.array([it[3] for it in pick], dtype=np.int64),
+                    np.array([slot.index for slot in held], dtype=np.int64),
+                    np.array([it[4] for it in pick], dtype=bool),
+                    np.array([not it[0].recon.fusion.result.in_contact for it in pick], bool),
+                    np.array([it[0].recon.fusion.result.taxels_used for it in pick], np.int64),
+                    self.unusable,
+                    *self.lists.values(),
+                    out,
+                )
+                t1 = time.perf_counter()
+                kern.quiet_batch(*args)
+            except Exception as exc:
+                # The patches it finished keep their answers; the one it stopped in (which
+                # may have taken part of the frame: an error inside the call, not one of its
+                # arguments' types) and those after it (untouched) take the full path.
+                self.fault("the compiled call", exc, len(pick))
+                self._forget()
             t2 = time.perf_counter()
             share = ((t1 - t0) / n, (t2 - t1) / n, 0.0)
             now = time.monotonic()
-            answers = out.tolist()
-        j = 0
-        for pipe, stamp, a, b, sc in items:
-            if sc < 0:
-                result = pipe.frame(
-                    stamp, view.taxel_ids[a:b], view.delta_c[a:b], view.status[a:b], contact=False
-                )
-            else:
-                code, w, valid, fast, learnt = answers[j]
-                slot = held[j]
-                j += 1
+            answers = {
+                k: row
+                for k, row in zip(ready, out.tolist(), strict=True)
+                if row[kern.OUT_FAST] >= 0
+            }
+            slots = dict(zip(ready, held, strict=True))
+        for k, (pipe, stamp, a, b, _) in enumerate(items):
+            answer = answers.get(k)
+            if answer is None:
+                result = full_frame(pipe, stamp, view, a, b)
+                add_row(rows, pipe, stamp, result)
+                continue
+            code, w, valid, fast, learnt = answer
+            try:
                 if fast:
                     self.held += 1
                     result = pipe.batch_held(stamp, bool(learnt), now, share)
@@ -230,5 +277,21 @@ class QuietBatch:
                     )
                 else:
                     self.rest += 1
+                    slot = slots[k]
                     result = pipe.batch_rest(stamp, code, w, valid, slot.delta, slot.ok, t0)
+            except Exception as exc:
+                if not pipe.node.context.ok():
+                    raise
+                pipe.internal_error(exc)
+                result = None
             add_row(rows, pipe, stamp, result)
+
+    def fault(self, where: str, exc: Exception, frames: int = 1) -> None:
+        """A fault of the batch's compiled path (``where`` raised ``exc``): counted, logged
+        and kept for /diagnostics; its ``frames`` go by the full path."""
+        self.errors += 1
+        self.last_error = (
+            f"quiet batch: {where} raised {_text(exc)}; {frames} frame(s) by the full path"
+        )
+        if self._log is not None:
+            self._log(self.last_error)
