@@ -2,10 +2,16 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from pathlib import Path
 
 from rclpy.executors import Executor
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def spin_until(executor: Executor, done: Callable[[], bool], timeout_s: float = 10.0) -> bool:
@@ -14,3 +20,51 @@ def spin_until(executor: Executor, done: Callable[[], bool], timeout_s: float = 
     while not done() and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.05)
     return done()
+
+
+class NodeProcess:
+    """A node run as its own process (``argv``, from the checkout, unbuffered), its output
+    (stdout and stderr) read line by line as it comes; a context manager that kills it if it
+    is still there at the end."""
+
+    def __init__(self, argv: Sequence[str]) -> None:
+        self.proc = subprocess.Popen(
+            list(argv),
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
+            env=dict(os.environ, PYTHONUNBUFFERED="1"),
+        )
+        self.lines: list[str] = []
+        self._new = threading.Condition()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            with self._new:
+                self.lines.append(line)
+                self._new.notify_all()
+
+    @property
+    def output(self) -> str:
+        return "".join(self.lines)
+
+    def wait_for_line(self, text: str = "", timeout_s: float = 60.0) -> bool:
+        """Wait until a line containing ``text`` (any line: "") was printed; whether it was."""
+        with self._new:
+            return self._new.wait_for(
+                lambda: any(text in line for line in self.lines), timeout=timeout_s
+            )
+
+    def __enter__(self) -> NodeProcess:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+        self._reader.join(timeout=5.0)

@@ -16,17 +16,15 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
 import sys
-import threading
 import time
-from pathlib import Path
 
 import pytest
 
+from test.rosutil import NodeProcess
+
 pytestmark = pytest.mark.ros
 
-ROOT = Path(__file__).resolve().parents[1]
 
 _STUCK_NODE = """
 import re, sys, threading
@@ -47,41 +45,15 @@ common.run_node("worker_monitor", StuckOnDestroy, [])
 
 
 def _run_and_interrupt(how: str) -> tuple[int, str, float]:
-    proc = subprocess.Popen(
-        [sys.executable, "-c", _STUCK_NODE, how],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        start_new_session=True,
-        env=dict(os.environ, PYTHONUNBUFFERED="1"),
-    )
-    lines: list[str] = []
-    started = threading.Event()
-
-    def read() -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            lines.append(line)
-            if "parameters:" in line:
-                started.set()
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
-    try:
-        assert started.wait(60.0), "".join(lines)
+    with NodeProcess([sys.executable, "-c", _STUCK_NODE, how]) as node:
+        assert node.wait_for_line("parameters:", 60.0), node.output
         time.sleep(0.5)
-        assert proc.poll() is None, "".join(lines)
+        assert node.proc.poll() is None, node.output
         start = time.monotonic()
-        os.kill(proc.pid, signal.SIGINT)
-        proc.wait(timeout=60.0)
+        os.kill(node.proc.pid, signal.SIGINT)
+        code = node.proc.wait(timeout=60.0)
         took = time.monotonic() - start
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        reader.join(timeout=5.0)
-    return proc.returncode, "".join(lines), took
+    return code, node.output, took
 
 
 def test_a_cleanup_stuck_with_the_gil_released_ends_with_its_code_and_says_where() -> None:
