@@ -30,6 +30,8 @@ import numpy as np
 from tactile_contact.inverse import _temporal_kernels as kern
 from tactile_contact.ros.contact_batches import full_frame
 
+_FAST = kern.OUT_FAST  # (the column of the call's answers that says a patch was reached)
+
 
 @dataclass
 class _Slot:
@@ -205,35 +207,43 @@ class QuietBatch:
         (an array of an unforeseen type): that frame by the full path. A compiled call that
         raises: said, counted, the frames it did not finish by the full path."""
         t0 = time.perf_counter()
-        ready: list[int] = []  # (items' indices: the frames the call takes)
+        at = [-1] * len(items)  # each item's row in the call's answers (-1: not in the call)
         held: list[_Slot] = []
-        for k, (pipe, _, _, _, sc) in enumerate(items):
+        starts, ends, scan, idle, expect = [], [], [], [], []
+        for k, (pipe, _, a, b, sc) in enumerate(items):
             if sc < 0:
                 continue
             try:
-                held.append(self._slot(pipe))
+                slot = self._slot(pipe)
+                result = pipe.recon.fusion.result
+                idle.append(not result.in_contact)
+                expect.append(result.taxels_used)
             except Exception as exc:
+                del idle[len(held) :]  # (what was added for it)
                 self.fault(f"patch {pipe.name}'s slot", exc)
                 continue
-            ready.append(k)
-        n = len(ready)
-        answers: dict[int, list] = {}
-        slots: dict[int, _Slot] = {}
+            at[k] = len(held)
+            held.append(slot)
+            starts.append(a)
+            ends.append(b)
+            scan.append(sc)
+        n = len(held)
+        answers: list = []
         share, now = (0.0, 0.0, 0.0), 0.0
         if n:
-            pick = [items[k] for k in ready]
-            out = np.full((n, 5), -1, dtype=np.int64)  # (OUT_FAST -1: not reached)
+            out = np.empty((n, 5), dtype=np.int64)
+            out[:, _FAST] = -1  # (not reached; cheaper than np.full: ≈ 1 µs a batch)
             t1 = t0
             try:
                 args = (
                     view.delta_c,
                     view.status,
-                    np.array([it[2] for it in pick], dtype=np.int64),
-                    np.array([it[3] for it in pick], dtype=np.int64),
+                    np.array(starts, dtype=np.int64),
+                    np.array(ends, dtype=np.int64),
                     np.array([slot.index for slot in held], dtype=np.int64),
-                    np.array([it[4] for it in pick], dtype=bool),
-                    np.array([not it[0].recon.fusion.result.in_contact for it in pick], bool),
-                    np.array([it[0].recon.fusion.result.taxels_used for it in pick], np.int64),
+                    np.array(scan, dtype=bool),
+                    np.array(idle, dtype=bool),
+                    np.array(expect, dtype=np.int64),
                     self.unusable,
                     *self.lists.values(),
                     out,
@@ -244,24 +254,18 @@ class QuietBatch:
                 # The patches it finished keep their answers; the one it stopped in (which
                 # may have taken part of the frame: an error inside the call, not one of its
                 # arguments' types) and those after it (untouched) take the full path.
-                self.fault("the compiled call", exc, len(pick))
+                self.fault("the compiled call", exc, n)
                 self._forget()
             t2 = time.perf_counter()
             share = ((t1 - t0) / n, (t2 - t1) / n, 0.0)
             now = time.monotonic()
-            answers = {
-                k: row
-                for k, row in zip(ready, out.tolist(), strict=True)
-                if row[kern.OUT_FAST] >= 0
-            }
-            slots = dict(zip(ready, held, strict=True))
+            answers = out.tolist()
         for k, (pipe, stamp, a, b, _) in enumerate(items):
-            answer = answers.get(k)
-            if answer is None:
-                result = full_frame(pipe, stamp, view, a, b)
-                add_row(rows, pipe, stamp, result)
+            j = at[k]
+            if j < 0 or answers[j][_FAST] < 0:
+                add_row(rows, pipe, stamp, full_frame(pipe, stamp, view, a, b))
                 continue
-            code, w, valid, fast, learnt = answer
+            code, w, valid, fast, learnt = answers[j]
             try:
                 if fast:
                     self.held += 1
@@ -277,7 +281,7 @@ class QuietBatch:
                     )
                 else:
                     self.rest += 1
-                    slot = slots[k]
+                    slot = held[j]
                     result = pipe.batch_rest(stamp, code, w, valid, slot.delta, slot.ok, t0)
             except Exception as exc:
                 if not pipe.node.context.ok():
