@@ -13,7 +13,7 @@ by least squares over all presses, and writes bundles built with them
 (``tactile-contact-calibrate LAYOUT.yaml PRESSES.npz -o BUNDLE_DIR``). When the presses name
 their indenter (``indenter``: "sphere 12 mm", "cylinder 3 mm", … or "hertz:R" / "punch:a" with
 R, a in mm) each press is predicted exactly; otherwise each press's contact (profile and a
-continuous radius) is fitted too, from two starts (:func:`fit_quality.free_fit`): a press's
+continuous radius) is fitted too, from up to three starts (:func:`fit_quality.free_fit`): a press's
 contact size trades against the footprint and the layer, so such presses pin the response
 less well.
 
@@ -141,7 +141,8 @@ def calibrate(patch: PatchLayout, presses: Presses, *, progress: bool = False) -
     closed form at each point; a parabola through the best point and its neighbours along
     each axis refines both; the refined point is evaluated exactly for the reported gain and
     residual. Presses without indenter names are then refined with continuous contact radii
-    (two starts, the better kept). The uncertainties come from the Jacobian at the result.
+    (up to three starts: fit_quality.free_fit; the best kept). The uncertainties come from
+    the Jacobian at the result.
     """
     t0 = time.perf_counter()
     model = _PressModel(patch, presses)
@@ -173,8 +174,10 @@ def calibrate(patch: PatchLayout, presses: Presses, *, progress: bool = False) -
     gain = float(g1[0])
     starts: list[dict[str, float]] = []
     if free:  # each press's contact radius made continuous, then everything refined together
+        s_nom, f_nom = float(patch.model.layer_scale), float(patch.footprint)
+        g_nom = float(model.cost(s_nom, np.array([f_nom]))[1][0])
         scale, foot, gain, fam, rad, jac, res, starts = free_fit(
-            model, cost, gains, feet, scales, (scale, foot, gain)
+            model, cost, gains, feet, scales, (scale, foot, gain), (s_nom, f_nom, g_nom)
         )
         c1 = np.array([float(res @ res)])
     else:
