@@ -25,29 +25,12 @@ import numpy as np
 from tactile_contact.model.forward import ForwardModel
 from tactile_contact.model.layout import load_layout
 from tactile_contact.offline.calibrate import calibrate
-from tactile_contact.offline.presses import INDENTERS, load_presses
+from tactile_contact.offline.presses import load_presses
+from test.presses_sim import random_presses
 
 ROOT = Path(__file__).resolve().parents[1]
 LAYOUT = ROOT / "config" / "hexagon_patch.yaml"
 GAIN = 1.15
-
-
-def _presses(xy: np.ndarray, fm: ForwardModel, n: int, seed: int) -> dict[str, np.ndarray]:
-    rng = np.random.default_rng(seed)
-    names = list(INDENTERS)
-    out: dict[str, list] = {"deflection": [], "force": [], "position": [], "indenter": []}
-    lo, hi = xy.min(axis=0), xy.max(axis=0)
-    while len(out["force"]) < n:
-        c = rng.uniform(lo, hi)
-        if np.min(np.hypot(*(xy - c).T)) > 3e-3:
-            continue
-        name, f = names[rng.integers(len(names))], float(rng.uniform(0.5, 3.0))
-        d = GAIN * fm.compression(INDENTERS[name], f, c)
-        out["deflection"].append(d * (1.0 + 0.01 * rng.normal(size=d.shape)))
-        out["force"].append(f)
-        out["position"].append(c)
-        out["indenter"].append(name)
-    return {k: np.array(v) for k, v in out.items()}
 
 
 def test_unnamed_presses_give_the_named_forces_scale_or_are_refused(tmp_path: Path) -> None:
@@ -55,7 +38,7 @@ def test_unnamed_presses_give_the_named_forces_scale_or_are_refused(tmp_path: Pa
     xy = patch.taxel_xy()
     e = patch.elastomer
     fm = ForwardModel(xy, e.thickness, e.young, e.poisson, fine_cell=2.5e-4, taxel_radius=2e-3)
-    presses = _presses(xy, fm, 48, seed=2026)
+    presses = random_presses(xy, fm, 48, seed=2026, gain=GAIN, per_reading=True)
     np.savez(tmp_path / "named.npz", **presses)
     presses.pop("indenter")
     np.savez(tmp_path / "unnamed.npz", **presses)

@@ -26,7 +26,7 @@ from tactile_contact.model.layout import load_layout
 from tactile_contact.offline.calibrate import MAX_FORCE_SIGMA, Calibration
 from tactile_contact.offline.calibration_report import report
 from tactile_contact.offline.fit_quality import uncertainty
-from tactile_contact.offline.presses import INDENTERS
+from test.presses_sim import random_presses
 
 ROOT = Path(__file__).resolve().parents[1]
 LAYOUT = ROOT / "config" / "hexagon_patch.yaml"
@@ -101,29 +101,9 @@ def skin():
     return xy, ForwardModel(xy, 2e-3, 2.1e5, 0.5, fine_cell=2.5e-4, taxel_radius=0.0)
 
 
-def _presses(xy, fm, n, seed, named, noise=0.01):
-    rng = np.random.default_rng(seed)
-    names = list(INDENTERS)
-    out: dict[str, list] = {"deflection": [], "force": [], "position": [], "indenter": []}
-    lo, hi = xy.min(axis=0), xy.max(axis=0)
-    while len(out["force"]) < n:
-        c = rng.uniform(lo, hi)
-        if np.min(np.hypot(*(xy - c).T)) > 3e-3:
-            continue
-        name, f = names[rng.integers(len(names))], float(rng.uniform(0.5, 3.0))
-        d = fm.compression(INDENTERS[name], f, c)
-        out["deflection"].append(d + rng.normal(0, noise * np.abs(d).max(), d.shape))
-        out["force"].append(f)
-        out["position"].append(c)
-        out["indenter"].append(name)
-    if not named:
-        out.pop("indenter")
-    return {k: np.array(v) for k, v in out.items()}
-
-
 def test_named_presses_give_a_bundle_with_its_uncertainties(skin, tmp_path):
     xy, fm = skin
-    np.savez(tmp_path / "presses.npz", **_presses(xy, fm, 24, seed=7, named=True))
+    np.savez(tmp_path / "presses.npz", **random_presses(xy, fm, 24, seed=7))
     proc = _run(str(LAYOUT), str(tmp_path / "presses.npz"), "-o", str(tmp_path / "b"))
     assert proc.returncode == 0, proc.stderr
     out = proc.stdout
@@ -147,7 +127,7 @@ def test_named_presses_give_a_bundle_with_its_uncertainties(skin, tmp_path):
 def test_unnamed_presses_that_cannot_pin_the_response_are_refused(skin, tmp_path):
     xy, fm = skin
     presses = tmp_path / "unnamed.npz"
-    np.savez(presses, **_presses(xy, fm, 10, seed=11, named=False, noise=0.03))
+    np.savez(presses, **random_presses(xy, fm, 10, seed=11, noise=0.03, named=False))
     out = tmp_path / "b"
     proc = _run(str(LAYOUT), str(presses), "-o", str(out), "--json")
     assert proc.returncode == 1, proc.stdout + proc.stderr
