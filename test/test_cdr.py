@@ -226,3 +226,41 @@ def test_a_contact_array_reads_back_as_written_and_as_rclpy_wrote_it(
         worker,
         rows,
     )
+
+
+def test_batches_whose_names_differ_after_their_first_bytes_read_each_their_own() -> None:
+    """read_taxel_batch keeps the names of the batches it read lately (the same a bus's
+    every period), looked up by their first bytes: batches that share those (a long bus
+    name) and differ after them read each their own names, in any order, and a batch cut
+    inside its names is refused though one with those first bytes was read before."""
+    from rclpy.serialization import serialize_message
+
+    from tactile_contact.ros.cdr import CdrError, read_taxel_batch
+
+    def batch(patches: list[str], frame_ids: list[str]) -> bytes:
+        d = {
+            "stamp": (1, 2),
+            "bus": "a_bus_whose_name_is_longer_than_the_bytes_the_names_are_looked_up_by",
+            "patches": patches,
+            "frame_ids": frame_ids,
+            "stamps": [(3, 4)] * len(patches),
+            "offsets": list(range(len(patches) + 1)),
+            "ids": list(range(len(patches))),
+            "delta_c": [0.5] * len(patches),
+            "raw": [1] * len(patches),
+            "status": [0] * len(patches),
+        }
+        return serialize_message(_batch_message(d))
+
+    one = batch(["hand", "arm"], ["f_hand", "f_arm"])
+    other = batch(["hand", "leg"], ["f_hand", "f_leg"])
+    longer = batch(["hand", "arm", "leg"], ["f_hand", "f_arm", "f_leg"])
+    assert one[:80] == other[:80]  # (the same first bytes, past the lookup's key)
+    for data, want in [(one, "arm"), (other, "leg"), (one, "arm"), (longer, "arm")] * 2:
+        v = read_taxel_batch(data)
+        assert v.patches[1] == want and v.frame_ids[1] == f"f_{want}"
+        assert len(v.patches) == len(v.offsets) - 1 == len(v.taxel_ids)
+    v.patches.append("mine")  # (the caller's own list: the next read is unchanged)
+    assert read_taxel_batch(longer).patches == ["hand", "arm", "leg"]
+    with pytest.raises(CdrError, match=r"TaxelBatch: truncated or malformed"):
+        read_taxel_batch(one[: one.index(b"f_arm")])

@@ -21,6 +21,12 @@ import numpy as np
 from tactile_contact.inverse._round_kernels import round_jacobian  # noqa: F401
 
 _JIT = {"cache": True, "nogil": True}
+#: The quiet path's kernels (an idle or held patch-frame): numpy's error model, i.e. no
+#: division-by-zero test before each division (which kept LLVM from vectorising their
+#: loops; ≈ 25 % of the idle scan). Their divisors are never 0 (σ > 0, frames ≥ 1, χ²
+#: limits > 0, the converter's C0 + ΔC > 0 where a reading is used); the results are the
+#: same IEEE divisions, bit for bit.
+_QUIET_JIT = {**_JIT, "error_model": "numpy"}
 
 #: The robust scale: the mean of the smallest TRIM share of the squared residuals, over that
 #: mean for a standard normal (E[Z²; |Z| < z₀.₉₅]/0.9). Not the median: on whole-count
@@ -34,7 +40,7 @@ N, HEAD, SCALE2, SCALE_FLOOR, SCALE_SEEN, SCALE_MEMORY, SCALE_PRIOR = range(7)
 STATE_SIZE = 7
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_QUIET_JIT)
 def held_step(
     d, ok, window_ok, sigma, buf, total, state, nbr, local_limit, q, limits
 ):  # pragma: no cover - compiled
@@ -183,7 +189,7 @@ def window_sums(buf, state, windows, wsum):  # pragma: no cover - compiled
             wsum[wi, i] = acc[i]
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_QUIET_JIT)
 def held_step_sums(
     d, ok, window_ok, sigma, buf, total, state, nbr, local_limit, q, limits, wsum, windows, spare
 ):  # pragma: no cover - compiled
@@ -213,7 +219,7 @@ def held_step_sums(
     return code
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_QUIET_JIT)
 def idle_scan_sums(wsum, state, ok, sigma, nbr, limit, windows, quantised):  # pragma: no cover
     """:func:`idle_scan` on the windows' kept sums ``wsum`` (:func:`held_step_sums`) instead
     of the ring's rows: the same statistics (up to the sums' rounding), the same answer."""
@@ -235,9 +241,13 @@ def idle_scan_sums(wsum, state, ok, sigma, nbr, limit, windows, quantised):  # p
             for c in range(nbr.shape[1]):
                 v = x[nbr[j, c]]
                 s += v * v
-            r = s / limit[j]
-            if r > best:
-                best, best_w = r, w
+            # r = s / limit[j] > best ≥ 1 needs s > limit[j] (a correctly rounded division
+            # is monotone): the division, for the few that may pass. Why: three divisions an
+            # element a window were most of the scan (the same answer, bit for bit).
+            if s > limit[j]:
+                r = s / limit[j]
+                if r > best:
+                    best, best_w = r, w
     return best_w
 
 
@@ -308,7 +318,7 @@ def best_split(buf, state, total, sigma, q):  # pragma: no cover - compiled
     return best_k, best
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_QUIET_JIT)
 def quiet_frame(
     dc,
     status,
@@ -388,7 +398,7 @@ def quiet_frame(
     return code, w, valid
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_QUIET_JIT)
 def learn_noise(d, ok, sigma, var, m4, alpha, spike):  # pragma: no cover - compiled
     """NoiseTracker.update's step (inverse.detection): False (nothing learnt) if a used
     reading (``ok`` and finite) exceeds ``spike``·σ; else, at the used taxels,
@@ -433,36 +443,39 @@ F2_BUF, F2_Q, F2_WSUM = range(3)
 F2 = 3
 B1_OK, B1_WINDOW_OK = range(2)
 B1 = 2
-#: quiet_batch's answer per patch: out[p, OUT_*].
-OUT_CODE, OUT_WINDOW, OUT_VALID, OUT_FAST, OUT_LEARNT = range(5)
+#: quiet_batch's table, a row a patch: what it is given (IN_*), what it answers (OUT_*).
+IN_START, IN_END, IN_SLOT, IN_SCAN, IN_IDLE, IN_EXPECT = range(6)
+OUT_CODE, OUT_WINDOW, OUT_VALID, OUT_FAST, OUT_LEARNT = range(6, 11)
+TABLE = 11
 
 
-@numba.njit(**_JIT)
-def quiet_batch(
-    dc, status, starts, ends, slots, scan, idle, expect, unusable, f1, i1, f2, i2, b1, out
-):  # pragma: no cover - compiled
+@numba.njit(**_QUIET_JIT)
+def quiet_batch(dc, status, unusable, table, f1, i1, f2, i2, b1):  # pragma: no cover - compiled
     """:func:`quiet_frame` for each of a batch's quiet patches in one call (contact_
     reconstruction's ContactBatches: an idle patch-frame's Python was most of its cost), and
     for those nothing further happens to, the noise tracker's step too.
 
     Args:
         dc, status: the batch's ΔC [F] and status flags, every patch's rows one after the
-            other (the message's arrays); starts, ends: (P,) each patch's first row and the
-            row after its last (a message may carry taxels its bundle lacks: disabled ones).
-        slots: (P,) each patch's slot in the typed lists f1, i1, f2, i2 (nbr), b1 (layout:
-            the F1_*, I1_*, F2_*, B1_* constants; its fusion's and its noise tracker's own
-            arrays, changed in place as quiet_frame and learn_noise change them).
-        scan: (P,) run the idle scan (FrameFusion.scan_due of an idle result); idle: (P,)
-            the held result has no contact (the noise tracker learns from the frame);
-            expect: (P,) the held result's taxels used.
+            other (the message's arrays).
         unusable: the status flags that leave a taxel out.
-        out: (P, 5) filled: quiet_frame's code, scan window and valid count; whether nothing
-            more happens (fast: unchanged, the valid count the result's, the scan picked
-            nothing); whether the tracker learnt from it (fast idle patches only).
+        table: (P, TABLE) int64, a row a patch. Given: IN_START, IN_END its first row of
+            ``dc`` and the row after its last (a message may carry taxels its bundle lacks:
+            disabled ones); IN_SLOT its slot in the typed lists f1, i1, f2, i2 (nbr), b1
+            (layout: the F1_*, I1_*, F2_*, B1_* constants; its fusion's and its noise
+            tracker's own arrays, changed in place as quiet_frame and learn_noise change
+            them); IN_SCAN run the idle scan (FrameFusion.scan_due of an idle result);
+            IN_IDLE the held result has no contact (the noise tracker learns from the
+            frame); IN_EXPECT the held result's taxels used. Filled: OUT_CODE, OUT_WINDOW,
+            OUT_VALID quiet_frame's code, scan window and valid count; OUT_FAST whether
+            nothing more happens (unchanged, the valid count the result's, the scan picked
+            nothing; left as given, -1, for a patch not reached); OUT_LEARNT whether the
+            tracker learnt from it (fast idle patches only).
     """
-    for p in range(slots.shape[0]):
-        s = slots[p]
-        a, e = starts[p], ends[p]
+    for p in range(table.shape[0]):
+        s = table[p, IN_SLOT]
+        a, e = table[p, IN_START], table[p, IN_END]
+        scan = table[p, IN_SCAN] != 0
         perm = i1[I1 * s + I1_PERM]
         x = F1 * s
         delta = f1[x + F1_DELTA]
@@ -484,15 +497,15 @@ def quiet_batch(
             f1[x + F1_LOCAL],
             f2[F2 * s + F2_Q],
             f1[x + F1_LIMITS],
-            scan[p],
+            scan,
             f1[x + F1_TRIGGER],
             i1[I1 * s + I1_WINDOWS],
             f2[F2 * s + F2_WSUM],
             f1[x + F1_SPARE],
         )
-        fast = code == 0 and valid == expect[p] and (not scan[p] or w == 0)
+        fast = code == 0 and valid == table[p, IN_EXPECT] and (not scan or w == 0)
         learnt = False
-        if fast and idle[p]:
+        if fast and table[p, IN_IDLE] != 0:
             rate = f1[x + F1_NOISE_RATE]
             learnt = learn_noise(
                 delta,
@@ -503,11 +516,11 @@ def quiet_batch(
                 rate[0],
                 rate[1],
             )
-        out[p, OUT_CODE] = code
-        out[p, OUT_WINDOW] = w
-        out[p, OUT_VALID] = valid
-        out[p, OUT_FAST] = fast
-        out[p, OUT_LEARNT] = learnt
+        table[p, OUT_CODE] = code
+        table[p, OUT_WINDOW] = w
+        table[p, OUT_VALID] = valid
+        table[p, OUT_FAST] = fast
+        table[p, OUT_LEARNT] = learnt
 
 
 # quiet_batch's typed lists are made and changed here, compiled and cached: from Python,

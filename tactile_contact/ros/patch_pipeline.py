@@ -81,10 +81,11 @@ class Window:
 
     def __init__(self, size: int = 1000) -> None:
         self._values = np.empty(size)
+        self._size = size
         self._count = 0
 
     def append(self, x: float) -> None:
-        self._values[self._count % len(self._values)] = x
+        self._values[self._count % self._size] = x
         self._count += 1
 
     def __len__(self) -> int:
@@ -133,6 +134,20 @@ class PatchStats:
         if series is None:
             series = self.stage_s[stage] = Window()
         series.append(seconds)
+
+    def time_frame(self, map_s: float, solve_s: float, publish_s: float) -> None:
+        """:meth:`time` of a frame's three stages, map, solve and publish [s], at once (a
+        batch's held frame: three calls were ≈ 1.5 µs of its ≈ 60)."""
+        s = self.stage_s
+        m, v, p = s.get("map"), s.get("solve"), s.get("publish")
+        if m is None or v is None or p is None:
+            self.time("map", map_s)
+            self.time("solve", solve_s)
+            self.time("publish", publish_s)
+            return
+        m.append(map_s)
+        v.append(solve_s)
+        p.append(publish_s)
 
 
 def stamp_from_ns(ns: int) -> Time:
@@ -512,8 +527,7 @@ class PatchPipeline:
         self._last_frame = now
         if learnt:
             self.noise.learnt()
-        stats.time("map", times[0])
-        stats.time("solve", times[1])
+        stats.time_frame(*times)
         if idle:
             stats.skipped_idle += 1
         else:
@@ -526,7 +540,6 @@ class PatchPipeline:
         stats.skipped_deflection += 1
         stats.skipped_images += 1
         stats.skipped_visualization += 1
-        stats.time("publish", times[2])
         return result
 
     def batch_rest(

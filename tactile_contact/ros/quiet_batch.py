@@ -30,7 +30,10 @@ import numpy as np
 from tactile_contact.inverse import _temporal_kernels as kern
 from tactile_contact.ros.contact_batches import full_frame
 
-_FAST = kern.OUT_FAST  # (the column of the call's answers that says a patch was reached)
+# The column of the call's answers (the table from OUT_CODE on) that says a patch was
+# reached, and the answer columns of a row as given (OUT_FAST -1: not reached).
+_FAST = kern.OUT_FAST - kern.OUT_CODE
+_NOT_REACHED = (0, 0, 0, -1, 0)
 
 
 @dataclass
@@ -38,7 +41,10 @@ class _Slot:
     """Where one patch's arrays sit in the typed lists, and which objects they are."""
 
     index: int
-    owner: tuple  # (the fusion, the noise tracker, the permutation) the slot was made for
+    # the fusion, the noise tracker, the permutation the slot was made for
+    fusion: Any
+    noise: Any
+    perm: Any
     window_ok: Any
     q: Any
     sigma: Any
@@ -87,9 +93,13 @@ class QuietBatch:
         """``pipe``'s slot, made or refreshed so that it holds the arrays in use now."""
         fusion, noise = pipe.recon.fusion, pipe.noise
         slot = self._slots.get(pipe.name)
-        owner = (fusion, noise, pipe._perm)
         sigma = pipe._noise_seen[1]
-        if slot is None or any(a is not b for a, b in zip(slot.owner, owner, strict=True)):
+        if (
+            slot is None
+            or slot.fusion is not fusion
+            or slot.noise is not noise
+            or slot.perm is not pipe._perm
+        ):
             slot = self._make(pipe, slot)
         window_ok, q = fusion.batch_replaced()
         # (each array put in its list before the slot notes it: one refused is tried again)
@@ -123,19 +133,12 @@ class QuietBatch:
         for a in kinds:
             kern.list_set(kern.list_of(a), 0, a)
             kern.list_add(kern.list_of(a), a)
-        none, no = np.zeros(0, np.int64), np.zeros(0, bool)
         kern.quiet_batch(
             np.frombuffer(bytes(4), np.float32),  # (a message's arrays: read-only)
             np.frombuffer(bytes(1), np.uint8),
-            none,
-            none,
-            none,
-            no,
-            no,
-            none,
             self.unusable,
+            np.zeros((0, kern.TABLE), np.int64),
             *(kern.list_of(a) for a in kinds),
-            np.zeros((0, 5), np.int64),
         )
 
     def _put(self, name: str, i: int, a: np.ndarray) -> None:
@@ -186,7 +189,9 @@ class QuietBatch:
                 self._put(name, width * index + j, v)
         slot = _Slot(
             index,
-            (fusion, noise, pipe._perm),
+            fusion,
+            noise,
+            pipe._perm,
             a["window_ok"],
             a["q"],
             pipe._noise_seen[1],
@@ -207,49 +212,35 @@ class QuietBatch:
         (an array of an unforeseen type): that frame by the full path. A compiled call that
         raises: said, counted, the frames it did not finish by the full path."""
         t0 = time.perf_counter()
-        at = [-1] * len(items)  # each item's row in the call's answers (-1: not in the call)
+        at = []  # each item's row in the call's table (-1: not in the call)
         held: list[_Slot] = []
-        starts, ends, scan, idle, expect = [], [], [], [], []
-        for k, (pipe, _, a, b, sc) in enumerate(items):
+        flat: list = []  # the table's rows one after the other (kern.IN_*, then OUT_*)
+        for pipe, _, a, b, sc in items:
             if sc < 0:
+                at.append(-1)
                 continue
             try:
                 slot = self._slot(pipe)
                 result = pipe.recon.fusion.result
-                idle.append(not result.in_contact)
-                expect.append(result.taxels_used)
+                row = (a, b, slot.index, sc, not result.in_contact, result.taxels_used)
             except Exception as exc:
-                del idle[len(held) :]  # (what was added for it)
                 self.fault(f"patch {pipe.name}'s slot", exc)
+                at.append(-1)
                 continue
-            at[k] = len(held)
+            at.append(len(held))
             held.append(slot)
-            starts.append(a)
-            ends.append(b)
-            scan.append(sc)
+            flat += row
+            flat += _NOT_REACHED
         n = len(held)
         answers: list = []
         share, now = (0.0, 0.0, 0.0), 0.0
         if n:
-            out = np.empty((n, 5), dtype=np.int64)
-            out[:, _FAST] = -1  # (not reached; cheaper than np.full: ≈ 1 µs a batch)
-            t1 = t0
+            table = np.array(flat, dtype=np.int64).reshape(n, kern.TABLE)
+            t1 = time.perf_counter()
             try:
-                args = (
-                    view.delta_c,
-                    view.status,
-                    np.array(starts, dtype=np.int64),
-                    np.array(ends, dtype=np.int64),
-                    np.array([slot.index for slot in held], dtype=np.int64),
-                    np.array(scan, dtype=bool),
-                    np.array(idle, dtype=bool),
-                    np.array(expect, dtype=np.int64),
-                    self.unusable,
-                    *self.lists.values(),
-                    out,
+                kern.quiet_batch(
+                    view.delta_c, view.status, self.unusable, table, *self.lists.values()
                 )
-                t1 = time.perf_counter()
-                kern.quiet_batch(*args)
             except Exception as exc:
                 # The patches it finished keep their answers; the one it stopped in (which
                 # may have taken part of the frame: an error inside the call, not one of its
@@ -259,9 +250,8 @@ class QuietBatch:
             t2 = time.perf_counter()
             share = ((t1 - t0) / n, (t2 - t1) / n, 0.0)
             now = time.monotonic()
-            answers = out.tolist()
-        for k, (pipe, stamp, a, b, _) in enumerate(items):
-            j = at[k]
+            answers = table[:, kern.OUT_CODE :].tolist()
+        for (pipe, stamp, a, b, _), j in zip(items, at, strict=True):
             if j < 0 or answers[j][_FAST] < 0:
                 add_row(rows, pipe, stamp, full_frame(pipe, stamp, view, a, b))
                 continue
@@ -269,7 +259,7 @@ class QuietBatch:
             try:
                 if fast:
                     self.held += 1
-                    result = pipe.batch_held(stamp, bool(learnt), now, share)
+                    result = pipe.batch_held(stamp, learnt != 0, now, share)
                 elif code < 0:  # (a reading not finite: the full path says so)
                     self.rest += 1
                     result = pipe.frame(
