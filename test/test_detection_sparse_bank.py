@@ -198,3 +198,100 @@ def test_random_sparse_banks_equal_the_dense_product(m, k, data):
     best, _, i = det.statistic(delta)
     assert abs(best - ref.max()) <= tol
     assert ref.max() - ref[i] <= 2 * tol
+
+
+# The coarse copy's bound (ContactDetector.surely_quiet): above every statistic, always; close
+# to the largest on noise; and its "quiet" only where detect finds nothing.
+
+
+def coarse_bound(det: ContactDetector, delta: np.ndarray) -> float:
+    from tactile_contact.inverse.detection import _coarse_bound
+
+    return _coarse_bound(*det._coarse, np.asarray(delta, np.float64)) * det._z_scale
+
+
+def window_means(det: ContactDetector, sigma: np.ndarray, n: int = 40) -> list[np.ndarray]:
+    """White noise at the filters' level (a mean of frames scaled by √n, as the fusion hands
+    it), some with a press added at a bank place, at a quarter to twice the threshold."""
+    rng = np.random.default_rng(5)
+    out = []
+    for j in range(n):
+        d = rng.standard_normal(len(sigma)) * sigma
+        if j % 2:
+            m = int(rng.integers(len(det.centres)))
+            r = det._responses[m]
+            z1 = float(dense_filters(det._responses[m : m + 1], sigma)[0] @ r)
+            d = d + r * (det.threshold * (0.25 + 1.75 * j / n) / z1)
+        out.append(d)
+    return out
+
+
+def test_the_coarse_bound_is_above_every_statistic_and_close(bank):
+    det, sigma = bank
+    other = sigma * np.random.default_rng(11).uniform(0.5, 2.0, len(sigma))
+    # (1.7 σ: a uniform multiple, the filters kept; ``other``: the filters rebuilt)
+    for sig in (sigma, 1.7 * sigma, other):
+        det.set_noise(sig)
+        try:
+            f = dense_filters(det._responses, sig)
+            for delta in window_means(det, sig) + frames(det, sig):
+                ref = f @ delta
+                bound = coarse_bound(det, delta)
+                assert bound >= ref.max()  # (the margin covers float32 rounding too)
+                if np.any(delta):
+                    # half a 127th of the largest weight times Σ|δ| over its group (0.4 σ at
+                    # most on the forearm whose σ spans 4×; 0.17 on the robot's banks)
+                    assert bound - ref.max() <= 0.1 * det.threshold
+        finally:
+            det.set_noise(sigma)
+
+
+def test_surely_quiet_only_where_detect_finds_nothing(bank):
+    det, sigma = bank
+    quiet = 0
+    for delta in window_means(det, sigma):
+        for scale_free in (False, True):
+            if det.surely_quiet(delta, scale_free):
+                quiet += 1
+                assert not det.detect(delta, scale_free)[0]
+            elif not scale_free:
+                assert coarse_bound(det, delta) >= det.threshold
+    assert quiet >= 10  # (noise alone and the light presses: the bound answers for them)
+    strong = window_means(det, sigma)[-1]
+    assert det.detect(strong, False)[0] and not det.surely_quiet(strong, False)
+
+
+def test_a_dropped_coarse_taxel_is_seen(bank):
+    """The checks above can fail: the coarse copy with one taxel's bytes set to 0 (as a wrong
+    layout would drop them) reads below the bank's largest statistic on a frame at that
+    taxel alone."""
+    det, sigma = bank
+    f = dense_filters(det._responses, sigma)
+    k = int(np.argmax(np.abs(det._responses).sum(axis=0)))
+    e = np.zeros(len(sigma))
+    e[k] = sigma[k]
+    coarse = det._coarse[4]
+    slots = det._blk_at[det._row_cols == k]
+    kept = coarse[slots].copy()
+    try:
+        coarse[slots] = 0
+        assert coarse_bound(det, e) < (f @ e).max()
+    finally:
+        coarse[slots] = kept
+    assert coarse_bound(det, e) >= (f @ e).max()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(2, 40), st.integers(2, 30), st.data())
+def test_random_sparse_banks_coarse_bound(m, k, data):
+    shape = (m, k)
+    values = data.draw(arrays(np.float64, shape, elements=st.floats(-1.0, 1.0)))
+    mask = data.draw(arrays(np.bool_, shape))
+    mask[np.arange(m), np.arange(m) % k] = True
+    values[np.arange(m), np.arange(m) % k] = 0.5
+    responses = np.where(mask, values, 0.0)
+    sigma = data.draw(arrays(np.float64, k, elements=st.floats(0.5, 2.0)))
+    delta = data.draw(arrays(np.float64, k, elements=st.floats(-3.0, 3.0)))
+    det = ContactDetector(responses, np.zeros((len(responses), 2)), sigma)
+    f = dense_filters(det._responses, sigma)
+    assert coarse_bound(det, delta) >= (f @ delta).max()
