@@ -295,3 +295,24 @@ def test_random_sparse_banks_coarse_bound(m, k, data):
     det = ContactDetector(responses, np.zeros((len(responses), 2)), sigma)
     f = dense_filters(det._responses, sigma)
     assert coarse_bound(det, delta) >= (f @ delta).max()
+
+
+def test_the_best_of_a_mean_is_the_sparse_sums_best_bit_for_bit(bank):
+    """A frame that reads something at most taxels: the filters the coarse bounds leave (those
+    whose upper bound reaches the largest lower bound) summed exactly give the sparse sums'
+    largest statistic and its index, the same numbers."""
+    from tactile_contact.inverse.detection import _bank_best, _coarse_sums, _pruned_best
+
+    det, sigma = bank
+    n_m = len(det._responses)
+    for delta in window_means(det, sigma):
+        want = _bank_best(*det._bank, delta, n_m)
+        low = _coarse_sums(*det._coarse, delta, det._upper)
+        kept = int(np.count_nonzero(det._upper >= low))
+        assert 1 <= kept < n_m // 10  # (the pruning prunes)
+        got = _pruned_best(
+            det._upper, low, det._blk_order, det._row_ptr, det._row_cols, det._row_vals, delta
+        )
+        assert got == (want[0], want[1])
+        if det._small is None:  # (the path _best takes for such a frame)
+            assert det._best(delta) == (want[0] * det._z_scale, int(want[1]))
