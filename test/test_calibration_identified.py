@@ -24,8 +24,8 @@ import pytest
 from tactile_contact.model.forward import ForwardModel
 from tactile_contact.model.layout import load_layout
 from tactile_contact.offline.calibrate import MAX_FORCE_SIGMA, Calibration
-from tactile_contact.offline.calibration_report import report
-from tactile_contact.offline.fit_quality import uncertainty
+from tactile_contact.offline.calibration_report import report, unidentified_message
+from tactile_contact.offline.fit_quality import ambiguous, uncertainty
 from test.presses_sim import random_presses
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -195,3 +195,34 @@ def test_report_words():
     assert "47: 60%" in one and "check their position" in one
     unnamed = " ".join(report(_cal(0.06, 0.2, sigma_gain=0.03, named=False), MAX_FORCE_SIGMA))
     assert "NOT IDENTIFIED" in unnamed and "name each press's indenter" in unnamed
+
+
+# --- two fits as good and far apart ---------------------------------------------------------
+
+
+def _end(gain: float, rho: float) -> dict[str, float]:
+    return {"gain": gain, "relative_residual": rho}
+
+
+def test_ambiguous_looks_past_an_end_in_the_same_valley():
+    """Every end as good counts, not only the second best: with two family tables per start
+    the second best is often the best's own valley (issue 26)."""
+    dof, best = 600, 0.035
+    near = best * np.sqrt(1 + 2.9 / dof)  # Δχ² 2.9
+    far = best * np.sqrt(1 + 9.5 / dof)  # Δχ² 9.5
+    same, apart = _end(1.005, near), _end(0.95, near * 1.0001)
+    assert ambiguous([_end(1.0, best), same, apart], dof, 0.02) is apart
+    assert ambiguous([_end(1.0, best), same], dof, 0.02) is None
+    assert ambiguous([_end(1.0, best), same, _end(0.95, far)], dof, 0.02) is None
+    assert ambiguous([_end(1.0, best)], dof, 0.02) is None
+
+
+def test_refusal_names_the_two_fits_it_cannot_tell_apart():
+    cal = _cal(0.035, 0.2, sigma_gain=0.01, named=False)
+    cal.uncertainty["sigma"]["force_scale"] = 0.045
+    plain = unidentified_message(cal, MAX_FORCE_SIGMA)
+    assert "Two fits" not in plain and "'indenter'" in plain
+    cal.uncertainty["ambiguous"] = {"gains": [0.997, 0.952], "relative_residuals": [0.0354, 0.0355]}
+    msg = unidentified_message(cal, MAX_FORCE_SIGMA)
+    assert "Two fits" in msg and "gain 0.997" in msg and "gain 0.952" in msg
+    assert "3.54%" in msg and "'indenter'" in msg and "--accept-uncertain" in msg

@@ -13,7 +13,8 @@ by least squares over all presses, and writes bundles built with them
 (``tactile-contact-calibrate LAYOUT.yaml PRESSES.npz -o BUNDLE_DIR``). When the presses name
 their indenter (``indenter``: "sphere 12 mm", "cylinder 3 mm", … or "hertz:R" / "punch:a" with
 R, a in mm) each press is predicted exactly; otherwise each press's contact (profile and a
-continuous radius) is fitted too, from up to three starts (:func:`fit_quality.free_fit`): a press's
+continuous radius) is fitted too, from up to three starts, each with two tables of radii to
+choose the presses' families from (:func:`fit_quality.free_fit`): a press's
 contact size trades against the footprint and the layer, so such presses pin the response
 less well.
 
@@ -72,6 +73,14 @@ LAYER_SCALES = tuple(np.round(np.arange(0.75, 1.251, 0.05), 4))
 REACH = 0.015
 #: Profiles tried for a press that names no indenter: contact radii [m] per family.
 FREE_RADII = tuple(float(a) for a in np.geomspace(0.5e-3, 8e-3, 16))
+#: Radii [m] per family over which such a press's family is chosen (fit_quality.both_families):
+#: 4.7 % apart. Between FREE_RADII's (20 % apart) a parabola in log a misjudges a press's best
+#: residual by more than the two families differ: at the named fit's response of
+#: bench_calibration's gain-1.15 truth (1 % per reading) 11 of 48 presses took the wrong family
+#: and the fit ended at 1.005 % of the readings where the true families give 0.581 %; with 31,
+#: 61 and 121 radii: 8, 5 and 1 wrong, 0.670, 0.584 and 0.579 % (issue 26). Each radius is one
+#: table of the fit's (one FFT field), so this costs ≈ 4× FREE_RADII's per choice.
+FAMILY_RADII = tuple(float(a) for a in np.geomspace(0.5e-3, 8e-3, 61))
 #: Largest 1-σ relative error of the forces' scale [-] a bundle is written with (without
 #: --accept-uncertain): the force error the calibration itself adds (fit_quality.uncertainty's
 #: force_scale). 48 presses of the paper's protocol pin it to < 1 % (docs/calibration.md).
@@ -141,8 +150,8 @@ def calibrate(patch: PatchLayout, presses: Presses, *, progress: bool = False) -
     closed form at each point; a parabola through the best point and its neighbours along
     each axis refines both; the refined point is evaluated exactly for the reported gain and
     residual. Presses without indenter names are then refined with continuous contact radii
-    (up to three starts: fit_quality.free_fit; the best kept). The uncertainties come from
-    the Jacobian at the result.
+    (up to three starts × two family tables: fit_quality.free_fit; the best kept). The
+    uncertainties come from the Jacobian at the result.
     """
     t0 = time.perf_counter()
     model = _PressModel(patch, presses)
@@ -188,9 +197,17 @@ def calibrate(patch: PatchLayout, presses: Presses, *, progress: bool = False) -
     if starts:
         unc["starts"] = starts
         # two fits as good and far apart: the presses cannot tell them apart
-        if ambiguous(starts, unc["dof"], MAX_FORCE_SIGMA):
-            gap = abs(starts[0]["gain"] - starts[1]["gain"])
+        other = ambiguous(starts, unc["dof"], MAX_FORCE_SIGMA)
+        if other is not None:
+            gap = abs(starts[0]["gain"] - other["gain"])
             unc["sigma"]["force_scale"] = max(unc["sigma"]["force_scale"], gap)
+            unc["ambiguous"] = {
+                "gains": [starts[0]["gain"], other["gain"]],
+                "relative_residuals": [
+                    starts[0]["relative_residual"],
+                    other["relative_residual"],
+                ],
+            }
     r2 = np.bincount(rows, res * res, minlength=len(fam))
     d2 = np.bincount(rows, presses.deflection[model.use] ** 2, minlength=len(fam))
     per_press = np.sqrt(r2 / np.maximum(d2, 1e-300))
@@ -244,6 +261,12 @@ class _PressModel:
             self.profiles, self.index = _profiles(presses, e.young, e.poisson)
         else:
             self.profiles, self.index = [(f, a) for f in (0, 1) for a in FREE_RADII], None
+        #: profiles among which an unnamed press's family is chosen (FAMILY_RADII)
+        self.family_profiles = (
+            self.profiles
+            if self.index is not None
+            else [(f, a) for f in (0, 1) for a in FAMILY_RADII]
+        )
         self.step, self.reach = 1e-4, REACH
         j = np.minimum(dist, REACH) / self.step
         self.jl = np.floor(j).astype(np.int64)

@@ -52,7 +52,18 @@ def unidentified_message(cal: Calibration, limit: float) -> str:
             "order, and that each press is one round contact"
         )
     elif not cal.named:
-        why = (
+        amb = u.get("ambiguous")
+        two = (
+            ""
+            if amb is None
+            else (
+                f"Two fits explain the readings about as well (gain {amb['gains'][0]:.3f} "
+                f"leaving {amb['relative_residuals'][0]:.2%}, gain {amb['gains'][1]:.3f} "
+                f"leaving {amb['relative_residuals'][1]:.2%}): the presses choose each "
+                "contact's family and size differently in each, and cannot tell them apart. "
+            )
+        )
+        why = two + (
             "The presses name no indenter, so each press's contact size is fitted as well and "
             "takes the place of the footprint radius and layer scale. Add an 'indenter' entry "
             "to the presses file naming each press's indenter ('sphere 12 mm', 'sphere 6 mm', "
