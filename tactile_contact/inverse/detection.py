@@ -673,6 +673,24 @@ def _quantise(row_ptr, row_vals, at, coarse):  # type: ignore[no-untyped-def]  #
     return step
 
 
+@numba.njit(cache=True, nogil=True, fastmath={"reassoc", "contract"}, inline="always")
+def _group_sums(g, row_ptr, taxel_ptr, taxels, offsets, coarse, delta, z):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Group g's coarse sums Σ q·δ into ``z[:m]`` (m its filters); returns (m, the rounding
+    slack (½ + 0.02)·Σ|δ| over the group's taxels): see :func:`_coarse_bound`."""
+    m = row_ptr[g + 1] - row_ptr[g]
+    z[:m] = 0.0
+    a1 = 0.0
+    p = offsets[g]
+    for t in range(taxel_ptr[g], taxel_ptr[g + 1]):
+        x = delta[taxels[t]]
+        a1 += abs(x)
+        run = coarse[p : p + m]  # (a slice: no index wrap-around checks, so SIMD)
+        for r in range(m):
+            z[r] += run[r] * x
+        p += m
+    return m, 0.52 * a1
+
+
 @numba.njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
 def _coarse_bound(row_ptr, taxel_ptr, taxels, offsets, coarse, step, delta):  # type: ignore[no-untyped-def]  # pragma: no cover
     """An upper bound on the largest bank statistic on readings ``delta`` (K,) [m], from
@@ -684,18 +702,7 @@ def _coarse_bound(row_ptr, taxel_ptr, taxels, offsets, coarse, step, delta):  # 
     z = np.empty(np.max(np.diff(row_ptr)))
     best = -1e300
     for g in range(row_ptr.shape[0] - 1):
-        m = row_ptr[g + 1] - row_ptr[g]
-        z[:m] = 0.0
-        a1 = 0.0
-        p = offsets[g]
-        for t in range(taxel_ptr[g], taxel_ptr[g + 1]):
-            x = delta[taxels[t]]
-            a1 += abs(x)
-            run = coarse[p : p + m]  # (a slice: no index wrap-around checks, so SIMD)
-            for r in range(m):
-                z[r] += run[r] * x
-            p += m
-        slack = 0.52 * a1
+        m, slack = _group_sums(g, row_ptr, taxel_ptr, taxels, offsets, coarse, delta, z)
         for r in range(m):
             b = step[row_ptr[g] + r] * (z[r] + slack)
             if b > best:
@@ -710,18 +717,7 @@ def _coarse_sums(row_ptr, taxel_ptr, taxels, offsets, coarse, step, delta, upper
     z = np.empty(np.max(np.diff(row_ptr)))
     low = -1e300
     for g in range(row_ptr.shape[0] - 1):
-        m = row_ptr[g + 1] - row_ptr[g]
-        z[:m] = 0.0
-        a1 = 0.0
-        p = offsets[g]
-        for t in range(taxel_ptr[g], taxel_ptr[g + 1]):
-            x = delta[taxels[t]]
-            a1 += abs(x)
-            run = coarse[p : p + m]
-            for r in range(m):
-                z[r] += run[r] * x
-            p += m
-        slack = 0.52 * a1
+        m, slack = _group_sums(g, row_ptr, taxel_ptr, taxels, offsets, coarse, delta, z)
         for r in range(m):
             s = step[row_ptr[g] + r]
             upper[row_ptr[g] + r] = s * (z[r] + slack)
