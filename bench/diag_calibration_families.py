@@ -67,11 +67,11 @@ def refine(
     families again (over ``choose``'s radii) and polish while that lowers the residual.
     (scale, foot, gain, families, squared residual)."""
     s, f, g = start
-    _, rad = fq.both_families(choose, s, f, g)
+    _, rad = fq.both_families(choose, s, f, g, choose.profiles)
     s1, f1, g1, _, _, res = fq.polish(model, s, f, g, fam, rad, bounds=BOUNDS)
     c = float(res @ res)
     for _ in range(fq.REFAMILY_ROUNDS):
-        fam2, rad2 = fq.both_families(choose, s1, f1, g1)
+        fam2, rad2 = fq.both_families(choose, s1, f1, g1, choose.profiles)
         if np.array_equal(fam2, fam):
             break
         cand = fq.polish(model, s1, f1, g1, fam2, rad2, bounds=BOUNDS)
@@ -122,10 +122,10 @@ def main() -> None:
     )
     sizes = [int(v) for v in args.radii.split(",")]
     for n in sizes:
-        choose = copy.copy(mu)  # both_families chooses over the model's profiles
+        choose = copy.copy(mu)  # its profiles: the table both_families is given
         choose.profiles = [(k, float(a)) for k in (0, 1) for a in np.geomspace(5e-4, 8e-3, n)]
         t = time.perf_counter()
-        fam, rad = fq.both_families(choose, s, f, g)
+        fam, rad = fq.both_families(choose, s, f, g, choose.profiles)
         tb = time.perf_counter() - t
         _, res = fq.jacobian(mu, s, f, g, fam, rad, True)
         wrong = np.nonzero(fam != fam_t)[0].tolist()

@@ -360,7 +360,8 @@ def free_fit(
         todo.append(nominal)
     lims = ((float(feet[0]), float(feet[-1])), (float(scales[0]), float(scales[-1])))
     fits, starts = [], []
-    for (s0, f0, g0), table in [(t, p) for t in todo for p in (model.profiles, None)]:
+    tables = (model.profiles, model.family_profiles)
+    for (s0, f0, g0), table in [(t, p) for t in todo for p in tables]:
         fam, rad = both_families(model, s0, f0, g0, table)
         s1, f1, g1, rad, jac, res = polish(model, s0, f0, g0, fam, rad, bounds=lims)
         c = float(res @ res)
