@@ -245,15 +245,15 @@ def uncertainty(
 
 
 def both_families(
-    model: _PressModel, scale: float, foot: float, gain: float, profiles: list | None = None
+    model: _PressModel, scale: float, foot: float, gain: float, profiles: list
 ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-    """Each unnamed press's best profile over both families, each family's radius refined by a
-    parabola in log a through its best tabulated radius and the neighbours (at most half a
-    step either way); the family whose refined residual is lower wins. The radii are
-    ``model.family_profiles`` (calibrate.FAMILY_RADII, 4.7 % apart): the parabola's error must
-    stay below the two families' difference, which it did not with the grid's radii 20 %
-    apart (11 of 48 presses in the wrong family at the named fit's response, issue 26)."""
-    profiles = model.family_profiles if profiles is None else profiles
+    """Each unnamed press's best profile over both families of ``profiles`` ((family, radius
+    [m]) pairs: the model's grid radii or its ``family_profiles``), each family's radius
+    refined by a parabola in log a through its best tabulated radius and the neighbours (at
+    most half a step either way); the family whose refined residual is lower wins. The
+    parabola's error must stay below the two families' difference, which it does not always
+    with the grid's radii 20 % apart (11 of 48 presses in the wrong family at the named fit's
+    response, issue 26): hence free_fit's second table (calibrate.FAMILY_RADII, 4.7 % apart)."""
     pred = unit_responses(model, scale, np.array([foot]), profiles)[:, 0]  # (P, N, K)
     d, use = model.presses.deflection, model.use
     r2 = np.sum(np.where(use[None], (gain * pred - d[None]) ** 2, 0.0), axis=2)  # (P, N)
