@@ -2,7 +2,7 @@
 
 CI saw worker_monitor hang after Ctrl-C under ros2 launch (SIGTERM 5 s later did nothing:
 rclpy's handler only shuts the context down; SIGKILL after 15 s). The cause was not found; what
-run_node guarantees instead (common.exit_if_stuck): STUCK_AFTER_S after the shutdown began, the
+run_node guarantees instead (interrupt.exit_if_stuck): STUCK_AFTER_S after the shutdown began, the
 process prints where its main thread is and exits with the code the shutdown was going to end
 with; and, a second later, faulthandler's C thread dumps every thread and exits 1, for a hang
 that holds the GIL (the Python watcher cannot run then).
@@ -57,7 +57,7 @@ def _run_and_interrupt(how: str) -> tuple[int, str, float]:
 
 
 def test_a_cleanup_stuck_with_the_gil_released_ends_with_its_code_and_says_where() -> None:
-    from tactile_contact.ros.common import STUCK_AFTER_S
+    from tactile_contact.ros.interrupt import STUCK_AFTER_S
 
     code, out, took = _run_and_interrupt("lock")
     assert code == 0, out
@@ -68,7 +68,7 @@ def test_a_cleanup_stuck_with_the_gil_released_ends_with_its_code_and_says_where
 
 
 def test_a_cleanup_stuck_holding_the_gil_is_dumped_and_ended_by_faulthandler() -> None:
-    from tactile_contact.ros.common import STUCK_AFTER_S
+    from tactile_contact.ros.interrupt import STUCK_AFTER_S
 
     code, out, took = _run_and_interrupt("gil")
     assert code == 1, out

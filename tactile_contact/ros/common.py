@@ -18,14 +18,9 @@ Everything here is a thin convenience over rclpy; no node logic lives in this mo
 
 from __future__ import annotations
 
-import faulthandler
 import gc
 import math
-import os
 import signal
-import sys
-import threading
-import traceback
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
@@ -50,6 +45,15 @@ from rclpy.qos import (
     QoSProfile,
     ReliabilityPolicy,
     qos_profile_sensor_data,
+)
+
+from tactile_contact.ros.interrupt import (
+    _cleaned_up,
+    _node_name,
+    _watcher,
+    catch_interrupts,
+    exit_if_stuck,
+    interrupted,
 )
 
 #: High-rate streams (taxels, grids): best effort, keep last 5, volatile (the ROS sensor profile).
@@ -252,66 +256,6 @@ def publish_while_up(node: Node, publisher: Any, msg: Any) -> bool:
     return True
 
 
-#: A node still running this long after its shutdown began (Ctrl-C, or its spin ended) is stuck
-#: in a library's cleanup: it says where and exits. Why: CI saw worker_monitor hang after
-#: Ctrl-C (once in ≈ 10 runs of the suite's ≈ 20 launches; ros2 launch escalated to SIGTERM, which
-#: rclpy's handler turns into a context shutdown only, then SIGKILL 15 s later). Below the 5 s
-#: after which ros2 launch escalates.
-STUCK_AFTER_S = 4.0
-_watching = threading.Event()
-_cleaned_up = threading.Event()  # run_node's cleanup returned: the Python watcher ends
-_node_name = ["node"]  # the name run_node runs, for the stuck message
-_watcher: list[threading.Thread] = []
-
-
-def exit_if_stuck(code: int = 0, after_s: float = STUCK_AFTER_S) -> None:
-    """From now on, if this process is still here ``after_s`` s later, print where its main
-    thread is and exit with ``code`` (the code the shutdown was going to end with). Armed once;
-    later calls do nothing.
-
-    Two watchers: a Python thread, which runs while the main thread waits with the GIL released
-    (a lock, a join, an rcl call that releases it) and exits with ``code``; and, one second
-    later, faulthandler's C thread, which needs no GIL (a deadlock inside a C call that holds
-    it) and dumps every thread's stack, then exits with 1. The first ends when run_node's
-    cleanup returns; the second stays armed for the interpreter's own exit (where no Python
-    thread runs any more).
-    """
-    if _watching.is_set():
-        return
-    _watching.set()
-    main = threading.main_thread().ident
-    name = _node_name[0]
-
-    def watch() -> None:
-        if _cleaned_up.wait(after_s):
-            return
-        frame = sys._current_frames().get(main) if main is not None else None
-        where = "".join(traceback.format_stack(frame)) if frame is not None else "(not found)\n"
-        sys.stderr.write(
-            f"WARNING: {name}: still shutting down {after_s:.0f} s after it began (stuck in a "
-            f"library's cleanup); exiting now. Its main thread was in:\n{where}"
-        )
-        sys.stderr.flush()
-        os._exit(code)
-
-    _watcher.append(threading.Thread(target=watch, name="exit_if_stuck", daemon=True))
-    _watcher[0].start()
-    faulthandler.dump_traceback_later(after_s + 1.0, exit=True)
-
-
-def _interrupt_once(signum: int, frame: Any) -> None:
-    """SIGINT: a KeyboardInterrupt the first time, ignored from then on. Why: a Ctrl-C in a
-    terminal reaches every process of the group and ros2 launch forwards its own, so a node
-    gets two, often milliseconds apart; the second, raised while the first was being handled
-    (before the cleanup could ignore it), escaped run_node and killed the process by SIGINT
-    (ros2 launch: "process has died … exit code -2", seen in CI)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if not getattr(_interrupt_once, "seen", False):
-        _interrupt_once.seen = True  # type: ignore[attr-defined]
-        exit_if_stuck()
-        raise KeyboardInterrupt
-
-
 def run_node(
     name: str, factory: Callable[[], Node], args: list[str] | None = None, *, events: bool = False
 ) -> None:
@@ -333,12 +277,17 @@ def run_node(
     code = 0  # the exit code the shutdown ends with, should it get stuck
     _node_name[0] = name
     # Before rclpy.init, so that rclpy's own handler (which shuts the context down) chains to it.
-    signal.signal(signal.SIGINT, _interrupt_once)
+    # (The executables install it before their imports already: see interrupt.py.)
+    catch_interrupts()
     try:
         try:
+            if interrupted():  # a Ctrl-C during the imports whose KeyboardInterrupt was lost
+                return
             rclpy.init(args=args)
             initialized = True
             node = factory()
+            if interrupted():  # (the same, while the node was built)
+                return
             # What the node holds from now on (bundles, tables, rclpy's objects: ≈ 200 000 at
             # 24 patches) is left out of the cyclic collector's full passes: such a pass
             # stopped the node for ≈ 85 ms, ≈ 3.5 ms after this. (A bundle replaced later is

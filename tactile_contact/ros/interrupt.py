@@ -1,0 +1,96 @@
+"""Ctrl-C for the node executables: one KeyboardInterrupt, then a bounded way out.
+
+Standard library only, so that an executable installs it (:func:`catch_interrupts`) before
+its heavy imports (numpy, scipy, numba, rclpy: several seconds on a busy machine). Why: until
+then Python's default handler raises a KeyboardInterrupt wherever the import is, and where that
+is a ctypes callback or a finaliser, Python prints it and carries on ("Exception ignored …"):
+the node started anyway and ran on, unasked, serving its patches beside the next test's
+(CI: a contact_reconstruction sent SIGINT 0.4 s after its start was still up 20 s later, and
+the eight ROS tests after it failed). With this handler, the first SIGINT also arms
+:func:`exit_if_stuck`, and :func:`interrupted` tells ``run_node`` not to start the node.
+"""
+
+from __future__ import annotations
+
+import faulthandler
+import os
+import signal
+import sys
+import threading
+import traceback
+from typing import Any
+
+#: A node still running this long after its shutdown began (Ctrl-C, or its spin ended) is stuck
+#: in a library's cleanup: it says where and exits. Why: CI saw worker_monitor hang after
+#: Ctrl-C (once in ≈ 10 runs of the suite's ≈ 20 launches; ros2 launch escalated to SIGTERM, which
+#: rclpy's handler turns into a context shutdown only, then SIGKILL 15 s later). Below the 5 s
+#: after which ros2 launch escalates. [s]
+STUCK_AFTER_S = 4.0
+_watching = threading.Event()
+_cleaned_up = threading.Event()  # run_node's cleanup returned: the Python watcher ends
+_interrupted = threading.Event()  # a SIGINT came (whether or not its KeyboardInterrupt landed)
+_node_name = ["node"]  # the name run_node runs, for the stuck message
+_watcher: list[threading.Thread] = []
+
+
+def exit_if_stuck(code: int = 0, after_s: float = STUCK_AFTER_S) -> None:
+    """From now on, if this process is still here ``after_s`` s later, print where its main
+    thread is and exit with ``code`` (the code the shutdown was going to end with). Armed once;
+    later calls do nothing.
+
+    Two watchers: a Python thread, which runs while the main thread waits with the GIL released
+    (a lock, a join, an rcl call that releases it) and exits with ``code``; and, one second
+    later, faulthandler's C thread, which needs no GIL (a deadlock inside a C call that holds
+    it) and dumps every thread's stack, then exits with 1. The first ends when run_node's
+    cleanup returns; the second stays armed for the interpreter's own exit (where no Python
+    thread runs any more).
+    """
+    if _watching.is_set():
+        return
+    _watching.set()
+    main = threading.main_thread().ident
+    name = _node_name[0]
+
+    def watch() -> None:
+        if _cleaned_up.wait(after_s):
+            return
+        frame = sys._current_frames().get(main) if main is not None else None
+        where = "".join(traceback.format_stack(frame)) if frame is not None else "(not found)\n"
+        sys.stderr.write(
+            f"WARNING: {name}: still shutting down {after_s:.0f} s after it began (stuck in a "
+            f"library's cleanup); exiting now. Its main thread was in:\n{where}"
+        )
+        sys.stderr.flush()
+        os._exit(code)
+
+    _watcher.append(threading.Thread(target=watch, name="exit_if_stuck", daemon=True))
+    _watcher[0].start()
+    faulthandler.dump_traceback_later(after_s + 1.0, exit=True)
+
+
+def interrupt_once(signum: int, frame: Any) -> None:
+    """SIGINT: a KeyboardInterrupt the first time, ignored from then on. Why: a Ctrl-C in a
+    terminal reaches every process of the group and ros2 launch forwards its own, so a node
+    gets two, often milliseconds apart; the second, raised while the first was being handled
+    (before the cleanup could ignore it), escaped run_node and killed the process by SIGINT
+    (ros2 launch: "process has died … exit code -2", seen in CI). The first also arms
+    :func:`exit_if_stuck`: if its KeyboardInterrupt is swallowed where it lands, the process
+    still ends."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if not _interrupted.is_set():
+        _interrupted.set()
+        exit_if_stuck()
+        raise KeyboardInterrupt
+
+
+def catch_interrupts() -> None:
+    """Install :func:`interrupt_once` for SIGINT (unless a SIGINT already came: then it stays
+    ignored)."""
+    if not _interrupted.is_set():
+        signal.signal(signal.SIGINT, interrupt_once)
+
+
+def interrupted() -> bool:
+    """Whether a SIGINT has come since :func:`catch_interrupts` (its KeyboardInterrupt may have
+    been lost in a library that swallowed it)."""
+    return _interrupted.is_set()
