@@ -52,6 +52,7 @@ from tactile_contact.ros.interrupt import (
     _node_name,
     _watcher,
     catch_interrupts,
+    deferred,
     exit_if_stuck,
     interrupted,
 )
@@ -285,8 +286,9 @@ def run_node(
                 return
             rclpy.init(args=args)
             initialized = True
-            node = factory()
-            if interrupted():  # (the same, while the node was built)
+            with deferred():  # (a KeyboardInterrupt inside numba's loading crashed it)
+                node = factory()
+            if interrupted():  # a Ctrl-C while the node was built
                 return
             # What the node holds from now on (bundles, tables, rclpy's objects: ≈ 200 000 at
             # 24 patches) is left out of the cyclic collector's full passes: such a pass

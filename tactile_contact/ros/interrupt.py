@@ -12,12 +12,14 @@ the eight ROS tests after it failed). With this handler, the first SIGINT also a
 
 from __future__ import annotations
 
+import contextlib
 import faulthandler
 import os
 import signal
 import sys
 import threading
 import traceback
+from collections.abc import Iterator
 from typing import Any
 
 #: A node still running this long after its shutdown began (Ctrl-C, or its spin ended) is stuck
@@ -29,6 +31,7 @@ STUCK_AFTER_S = 4.0
 _watching = threading.Event()
 _cleaned_up = threading.Event()  # run_node's cleanup returned: the Python watcher ends
 _interrupted = threading.Event()  # a SIGINT came (whether or not its KeyboardInterrupt landed)
+_deferred = threading.Event()  # while set, a SIGINT is noted, not raised (see deferred())
 _node_name = ["node"]  # the name run_node runs, for the stuck message
 _watcher: list[threading.Thread] = []
 
@@ -75,12 +78,27 @@ def interrupt_once(signum: int, frame: Any) -> None:
     (before the cleanup could ignore it), escaped run_node and killed the process by SIGINT
     (ros2 launch: "process has died … exit code -2", seen in CI). The first also arms
     :func:`exit_if_stuck`: if its KeyboardInterrupt is swallowed where it lands, the process
-    still ends."""
+    still ends. Inside :func:`deferred` it is only noted."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if not _interrupted.is_set():
         _interrupted.set()
         exit_if_stuck()
-        raise KeyboardInterrupt
+        if not _deferred.is_set():
+            raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def deferred() -> Iterator[None]:
+    """A SIGINT in this block raises no KeyboardInterrupt (:func:`interrupted` says it came;
+    rclpy's own handler still shuts the context down). Why: run_node builds the node in one,
+    because a KeyboardInterrupt raised inside numba while it loaded a cached kernel crashed
+    the process (SIGSEGV in numba's codegen.set_env, 0.07 s after the SIGINT; a double free at
+    exit another time): about once in 40–80 SIGINTs timed to land in the build."""
+    _deferred.set()
+    try:
+        yield
+    finally:
+        _deferred.clear()
 
 
 def catch_interrupts() -> None:
@@ -94,3 +112,15 @@ def interrupted() -> bool:
     """Whether a SIGINT has come since :func:`catch_interrupts` (its KeyboardInterrupt may have
     been lost in a library that swallowed it)."""
     return _interrupted.is_set()
+
+
+def leave_if_interrupted() -> None:
+    """After a Ctrl-C, end the process now, without the interpreter's finalisation (its own
+    cleanup has run: run_node's). Why: a SIGINT while the node was being built once left a
+    half-made native object to the final garbage collection, which crashed ("free(): double
+    free detected", SIGABRT, in a loop of timed SIGINTs); whatever an interrupt leaves half
+    done is not worth finalising."""
+    if _interrupted.is_set():
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)
