@@ -52,11 +52,11 @@ def exit_if_stuck(code: int = 0, after_s: float = STUCK_AFTER_S) -> None:
         return
     _watching.set()
     main = threading.main_thread().ident
-    name = _node_name[0]
 
     def watch() -> None:
         if _cleaned_up.wait(after_s):
             return
+        name = _node_name[0]  # (armed by a SIGINT in the imports, before run_node named it)
         frame = sys._current_frames().get(main) if main is not None else None
         where = "".join(traceback.format_stack(frame)) if frame is not None else "(not found)\n"
         sys.stderr.write(
