@@ -48,13 +48,12 @@ from rclpy.qos import (
 )
 
 from tactile_contact.ros.interrupt import (
-    _cleaned_up,
-    _node_name,
-    _watcher,
     catch_interrupts,
     deferred,
     exit_if_stuck,
     interrupted,
+    name_the_node,
+    shutdown_finished,
 )
 
 #: High-rate streams (taxels, grids): best effort, keep last 5, volatile (the ROS sensor profile).
@@ -276,7 +275,7 @@ def run_node(
     executor = None
     initialized = False
     code = 0  # the exit code the shutdown ends with, should it get stuck
-    _node_name[0] = name
+    name_the_node(name)
     # Before rclpy.init, so that rclpy's own handler (which shuts the context down) chains to it.
     # (The executables install it before their imports already: see interrupt.py.)
     catch_interrupts()
@@ -333,6 +332,4 @@ def run_node(
             node.destroy_node()
         rclpy.try_shutdown()
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-        _cleaned_up.set()
-        for watcher in _watcher:  # (ended: nothing of run_node's outlives it)
-            watcher.join(timeout=1.0)
+        shutdown_finished()

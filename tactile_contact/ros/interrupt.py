@@ -71,6 +71,19 @@ def exit_if_stuck(code: int = 0, after_s: float = STUCK_AFTER_S) -> None:
     faulthandler.dump_traceback_later(after_s + 1.0, exit=True)
 
 
+def name_the_node(name: str) -> None:
+    """The name the stuck message gives (run_node's node)."""
+    _node_name[0] = name
+
+
+def shutdown_finished() -> None:
+    """run_node's cleanup returned: the Python watcher ends (joined: nothing of run_node's
+    outlives it); faulthandler's stays armed for the interpreter's exit."""
+    _cleaned_up.set()
+    for watcher in _watcher:
+        watcher.join(timeout=1.0)
+
+
 def interrupt_once(signum: int, frame: Any) -> None:
     """SIGINT: a KeyboardInterrupt the first time, ignored from then on. Why: a Ctrl-C in a
     terminal reaches every process of the group and ros2 launch forwards its own, so a node
