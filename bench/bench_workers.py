@@ -217,9 +217,15 @@ def run_phase(
             )
         )
     else:
+        # Another tree's package runs as a module: this tree's script may import what that tree
+        # does not have (a worker that died at its first import left the bench waiting 300 s).
+        exe = (
+            ["-m", "tactile_contact.ros.contact_reconstruction"]
+            if tree
+            else [str(ROOT / "scripts" / "contact_reconstruction")]
+        )
         for i in range(workers):
-            exe = str(ROOT / "scripts" / "contact_reconstruction")
-            args = [exe, "--ros-args", "-p", f"bundles_dir:={bundles}", "-p", f"layout:={layout}"]
+            args = [*exe, "--ros-args", "-p", f"bundles_dir:={bundles}", "-p", f"layout:={layout}"]
             args += ["-p", "input:=batches", "-p", f"worker_index:={i}"]
             args += ["-p", f"worker_count:={workers}"]
             procs.append(
@@ -285,7 +291,12 @@ def run_phase(
 
     deadline = time.monotonic() + 300.0
     while not ready():
-        if time.monotonic() > deadline:
+        dead = [p.args for p in procs if p.poll() is not None]
+        if dead or time.monotonic() > deadline:
+            for p in (source, *procs):  # (none left running on the domain)
+                p.kill()
+            if dead:
+                raise SystemExit(f"the {consumers}: {dead[0]} ended before serving (run it alone)")
             raise SystemExit(f"the {consumers} did not come up in 300 s")
         time.sleep(0.2)
     source.stdin.write("GO\n")
