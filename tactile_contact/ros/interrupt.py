@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import faulthandler
+import importlib
 import os
 import signal
 import sys
@@ -28,7 +29,6 @@ from typing import Any
 #: rclpy's handler turns into a context shutdown only, then SIGKILL 15 s later). Below the 5 s
 #: after which ros2 launch escalates. [s]
 STUCK_AFTER_S = 4.0
-_watching = threading.Event()
 _cleaned_up = threading.Event()  # run_node's cleanup returned: the Python watcher ends
 _interrupted = threading.Event()  # a SIGINT came (whether or not its KeyboardInterrupt landed)
 _deferred = threading.Event()  # while set, a SIGINT is noted, not raised (see deferred())
@@ -48,9 +48,8 @@ def exit_if_stuck(code: int = 0, after_s: float = STUCK_AFTER_S) -> None:
     cleanup returns; the second stays armed for the interpreter's own exit (where no Python
     thread runs any more).
     """
-    if _watching.is_set():
+    if _watcher:
         return
-    _watching.set()
     main = threading.main_thread().ident
 
     def watch() -> None:
@@ -137,3 +136,15 @@ def leave_if_interrupted() -> None:
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(0)
+
+
+def run_executable(module: str) -> None:
+    """A node executable (scripts/): the handler first, then ``module``'s imports (a Ctrl-C
+    there leaves with 130, as after start), its ``main()``, then :func:`leave_if_interrupted`."""
+    catch_interrupts()
+    try:
+        main = importlib.import_module(module).main
+    except KeyboardInterrupt:  # Ctrl-C while the modules load: leave quietly, as after start
+        raise SystemExit(130) from None
+    main()
+    leave_if_interrupted()
