@@ -49,6 +49,19 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(skip)
 
 
+@pytest.fixture(autouse=True)
+def no_leftover_process() -> Iterator[None]:
+    """Fail a test that leaves a process running (test/leftovers.py), after killing it: a
+    stray node on the test domain would fail the tests after it instead."""
+    from test.leftovers import descendants, end_leftovers
+
+    before = descendants()
+    yield
+    left = end_leftovers(before)
+    if left:
+        pytest.fail("processes still running after the test (killed): " + "; ".join(left))
+
+
 @pytest.fixture
 def ros_context() -> Iterator[object]:
     """A fresh rclpy context for one test, shut down afterwards."""
