@@ -5,6 +5,7 @@ it writes, and its errors on bad files."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -80,6 +81,23 @@ def test_cli_prints_the_fit(tmp_path, skin, capsys):
     assert {"uncertainty", "identified", "report"} <= set(out)
     assert (tmp_path / "b" / "hexagon").is_dir()
     assert (tmp_path / "b" / "hexagon_patch.calibrated.yaml").is_file()
+
+
+def test_the_unnamed_fits_ends_in_processes_come_back_in_order(tmp_path, capsys):
+    # free_fit runs its ends (starts × family tables) through map_jobs in --jobs processes
+    # (test_calibration_families and test_calibration_identified fit through it): each
+    # result in its argument's place, an error raised in a process raised here, and
+    # --jobs 0 refused with a message.
+    from tactile_contact.offline.fit_quality import map_jobs
+
+    args = [(float(x), 0.5) for x in range(7)]
+    want = [math.pow(*a) for a in args]
+    assert map_jobs(math.pow, args, 2) == want == map_jobs(math.pow, args, None)
+    with pytest.raises(ValueError, match="math domain error"):
+        map_jobs(math.sqrt, [(4.0,), (-1.0,)], 2)
+    argv = [str(LAYOUT), str(tmp_path / "p.npz"), "-o", str(tmp_path / "b"), "--jobs", "0"]
+    assert main(argv) == 2
+    assert "--jobs must be >= 1" in capsys.readouterr().err
 
 
 def _good(n=10, k=72):

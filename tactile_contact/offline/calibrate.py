@@ -143,15 +143,18 @@ def _profiles(presses: Presses, young: float, poisson: float) -> tuple[list, NDA
     return list(uniq), np.asarray(index, dtype=np.int64)
 
 
-def calibrate(patch: PatchLayout, presses: Presses, *, progress: bool = False) -> Calibration:
+def calibrate(
+    patch: PatchLayout, presses: Presses, *, progress: bool = False, jobs: int | None = None
+) -> Calibration:
     """Fit footprint radius, gain and layer scale to ``presses`` (see module docstring).
 
     A grid over footprint radius × layer scale (FOOTPRINTS × LAYER_SCALES) with the gain in
     closed form at each point; a parabola through the best point and its neighbours along
     each axis refines both; the refined point is evaluated exactly for the reported gain and
     residual. Presses without indenter names are then refined with continuous contact radii
-    (up to three starts × two family tables: fit_quality.free_fit; the best kept). The
-    uncertainties come from the Jacobian at the result.
+    (up to three starts × two family tables: fit_quality.free_fit; the best kept), those
+    ends in up to ``jobs`` processes (default 2; 1: in this one; the same result either
+    way). The uncertainties come from the Jacobian at the result.
     """
     t0 = time.perf_counter()
     model = _PressModel(patch, presses)
@@ -186,7 +189,14 @@ def calibrate(patch: PatchLayout, presses: Presses, *, progress: bool = False) -
         s_nom, f_nom = float(patch.model.layer_scale), float(patch.footprint)
         g_nom = float(model.cost(s_nom, np.array([f_nom]))[1][0])
         scale, foot, gain, fam, rad, jac, res, starts = free_fit(
-            model, cost, gains, feet, scales, (scale, foot, gain), (s_nom, f_nom, g_nom)
+            model,
+            cost,
+            gains,
+            feet,
+            scales,
+            (scale, foot, gain),
+            (s_nom, f_nom, g_nom),
+            jobs=2 if jobs is None else jobs,
         )
         c1 = np.array([float(res @ res)])
     else:
@@ -397,12 +407,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--patch", help="patch the presses belong to (default: the only one)")
     ap.add_argument("--json", action="store_true", help="print the result as JSON")
     ap.add_argument(
+        "--jobs",
+        type=int,
+        default=None,
+        help="parallel processes for presses that name no indenter (default 2)",
+    )
+    ap.add_argument(
         "--accept-uncertain",
         action="store_true",
         help=f"write the bundle even when the presses pin the gain to worse than "
         f"±{MAX_FORCE_SIGMA:.0%} (1 σ); the manifest keeps the uncertainties",
     )
     args = ap.parse_args(argv)
+    if args.jobs is not None and args.jobs < 1:
+        print(f"ERROR: --jobs must be >= 1, got {args.jobs}", file=sys.stderr)
+        return 2
     cal = None
     try:
         lay = load_layout(args.layout)
@@ -411,7 +430,7 @@ def main(argv: list[str] | None = None) -> int:
             raise CalibrationError(f"{args.layout}: several patches ({names}): pass --patch")
         patch = lay.patch(args.patch) if args.patch else lay.patches[0]
         presses = load_presses(args.presses, patch)
-        cal = calibrate(patch, presses, progress=not args.json)
+        cal = calibrate(patch, presses, progress=not args.json, jobs=args.jobs)
         if not args.json:
             _print_fit(patch.name, cal)
         path = write_bundle(

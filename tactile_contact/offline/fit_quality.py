@@ -22,15 +22,20 @@ No ROS import.
 
 from __future__ import annotations
 
+import concurrent.futures as cf
 import math
+import multiprocessing
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 if TYPE_CHECKING:  # (calibrate imports this module)
     from tactile_contact.offline.calibrate import _PressModel
+
+T = TypeVar("T")
 
 #: Relative steps of the layer scale and the contact radii; step of b² [m²].
 STEP_REL = 1e-2
@@ -334,6 +339,8 @@ def free_fit(
     scales: NDArray,
     grid_best: tuple[float, float, float],
     nominal: tuple[float, float, float] | None = None,
+    *,
+    jobs: int | None = None,
 ) -> tuple[Any, ...]:
     """Presses without indenter names: the grid's best point, the best grid point at the
     smallest footprint and ``nominal`` (the layout's own layer scale and footprint, with the
@@ -349,7 +356,8 @@ def free_fit(
     apart: the grid's misjudged 11 of 48 presses' families, a 1.55× force error left on the
     gain 1.15 truth at 1 % per reading; the fine table alone ended the point truth's grid
     start at 5.4 %), each polished with its rounds. Returns (scale, foot, gain, families,
-    radii, J, residual, starts), ``starts`` every end, best first."""
+    radii, J, residual, starts), ``starts`` every end, best first. The ends are independent:
+    ``jobs`` processes fit them (:func:`map_jobs`), with the same result as one."""
     si0 = int(np.argmin(cost[0]))
     todo = [grid_best]
     if grid_best[1] > feet[0]:
@@ -359,39 +367,65 @@ def free_fit(
     ):
         todo.append(nominal)
     lims = ((float(feet[0]), float(feet[-1])), (float(scales[0]), float(scales[-1])))
-    fits, starts = [], []
-    tables = (model.profiles, model.family_profiles)
-    for (s0, f0, g0), table in [(t, p) for t in todo for p in tables]:
-        fam, rad = both_families(model, s0, f0, g0, table)
-        s1, f1, g1, rad, jac, res = polish(model, s0, f0, g0, fam, rad, bounds=lims)
-        c = float(res @ res)
-        # Each press's family was chosen at the start's response; the polish moves the
-        # response and may leave presses with the wrong one, which the response then
-        # compensates (issue 26, 1 % noise per reading, 2 mm electrode, gain 1.15: gain 1.012,
-        # layer 1.091 at 1.7 % residual, where the truth's own point gives 1.0 %). Choose
-        # again at the polished response and polish from there while that lowers the residual.
-        for _ in range(REFAMILY_ROUNDS):
-            fam2, rad2 = both_families(model, s1, f1, g1, table)
-            if np.array_equal(fam2, fam):
-                break
-            cand = polish(model, s1, f1, g1, fam2, rad2, bounds=lims)
-            c2 = float(cand[5] @ cand[5])
-            if not c2 < c:
-                break
-            (s1, f1, g1, rad, jac, res), fam, c = cand, fam2, c2
-        fits.append((c, s1, f1, g1, fam, rad, jac, res))
-        starts.append(
-            {
-                "from": [round(f0, 7), round(s0, 5), round(g0, 5)],
-                "footprint_radius": f1,
-                "layer_scale": s1,
-                "gain": g1,
-                "relative_residual": math.sqrt(c / model.norm2),
-            }
-        )
+    jobs_list = [(t, table) for t in todo for table in ("profiles", "family_profiles")]
+    fits = map_jobs(_fit_from, [(model, t, table, lims) for t, table in jobs_list], jobs)
+    starts = [
+        {
+            "from": [round(f0, 7), round(s0, 5), round(g0, 5)],
+            "footprint_radius": fit[2],
+            "layer_scale": fit[1],
+            "gain": fit[3],
+            "relative_residual": math.sqrt(fit[0] / model.norm2),
+        }
+        for ((s0, f0, g0), _), fit in zip(jobs_list, fits, strict=True)
+    ]
     order = np.argsort([f[0] for f in fits])
-    c, s1, f1, g1, fam, rad, jac, res = fits[order[0]]
+    _, s1, f1, g1, fam, rad, jac, res = fits[order[0]]
     return s1, f1, g1, fam, rad, jac, res, [starts[i] for i in order]
+
+
+def _fit_from(
+    model: _PressModel,
+    start: tuple[float, float, float],
+    table: str,
+    lims: tuple[tuple[float, float], tuple[float, float]],
+) -> tuple[float, float, float, float, NDArray, NDArray, NDArray, NDArray]:
+    """One end of :func:`free_fit`: each press's family chosen at ``start`` (layer scale,
+    footprint [m], gain) over the model's ``table`` of profiles, polished, then chosen again
+    and polished while that lowers the residual. Returns (cost [m²], scale, foot, gain,
+    families, radii, J, residual)."""
+    s0, f0, g0 = start
+    profiles = getattr(model, table)
+    fam, rad = both_families(model, s0, f0, g0, profiles)
+    s1, f1, g1, rad, jac, res = polish(model, s0, f0, g0, fam, rad, bounds=lims)
+    c = float(res @ res)
+    # Each press's family was chosen at the start's response; the polish moves the
+    # response and may leave presses with the wrong one, which the response then
+    # compensates (issue 26, 1 % noise per reading, 2 mm electrode, gain 1.15: gain 1.012,
+    # layer 1.091 at 1.7 % residual, where the truth's own point gives 1.0 %). Choose
+    # again at the polished response and polish from there while that lowers the residual.
+    for _ in range(REFAMILY_ROUNDS):
+        fam2, rad2 = both_families(model, s1, f1, g1, profiles)
+        if np.array_equal(fam2, fam):
+            break
+        cand = polish(model, s1, f1, g1, fam2, rad2, bounds=lims)
+        c2 = float(cand[5] @ cand[5])
+        if not c2 < c:
+            break
+        (s1, f1, g1, rad, jac, res), fam, c = cand, fam2, c2
+    return c, s1, f1, g1, fam, rad, jac, res
+
+
+def map_jobs(fn: Callable[..., T], args: list[tuple], jobs: int | None) -> list[T]:
+    """``[fn(*a) for a in args]``, in up to ``jobs`` processes (1 or None: here). forkserver,
+    not fork: the caller may be a ROS process whose DDS threads a forked child would inherit
+    in an undefined state (as tactile_contact.offline.build)."""
+    n = max(1, min(jobs or 1, len(args)))
+    if n == 1:
+        return [fn(*a) for a in args]
+    ctx = multiprocessing.get_context("forkserver")
+    with cf.ProcessPoolExecutor(max_workers=n, mp_context=ctx) as pool:
+        return list(pool.map(fn, *zip(*args, strict=True)))
 
 
 def ambiguous(starts: list[dict[str, float]], dof: int, limit: float) -> dict[str, float] | None:
