@@ -17,7 +17,7 @@ grows about as its thickness) must come within 3 % of the named fit's, or the fi
 (identified() False). Before the change: +4.9 % (gain 1.264, layer 0.948), accepted; after
 it +2.4 %; with each start's families chosen over 16 and over 61 radii (FAMILY_RADII) +0.8 %
 (gain 1.1556, layer 0.9964 against the named 1.1304, 1.0105; 1343 s on one core, 848 s with
-the fit's six ends in calibrate's default two processes: the same figures)."""
+the fit's six ends in two processes (jobs=2): the same figures)."""
 
 from __future__ import annotations
 
@@ -46,7 +46,7 @@ def test_unnamed_presses_give_the_named_forces_scale_or_are_refused(tmp_path: Pa
     presses.pop("indenter")
     np.savez(tmp_path / "unnamed.npz", **presses)
     named = calibrate(patch, load_presses(tmp_path / "named.npz", patch))
-    cal = calibrate(patch, load_presses(tmp_path / "unnamed.npz", patch))
+    cal = calibrate(patch, load_presses(tmp_path / "unnamed.npz", patch), jobs=2)
     assert named.named and not cal.named and named.identified()
     scale = cal.gain * cal.layer_scale / (named.gain * named.layer_scale)
     print(

@@ -153,8 +153,11 @@ def calibrate(
     each axis refines both; the refined point is evaluated exactly for the reported gain and
     residual. Presses without indenter names are then refined with continuous contact radii
     (up to three starts × two family tables: fit_quality.free_fit; the best kept), those
-    ends in up to ``jobs`` processes (default 2; 1: in this one; the same result either
-    way). The uncertainties come from the Jacobian at the result.
+    ends in up to ``jobs`` processes (default 1: in this one; the same result either way;
+    the command's default is 2). More than one starts processes (forkserver) that import
+    the caller's main script: a script that calls this at its top level needs
+    ``if __name__ == "__main__":`` (else the pool breaks: BrokenProcessPool). The
+    uncertainties come from the Jacobian at the result.
     """
     t0 = time.perf_counter()
     model = _PressModel(patch, presses)
@@ -196,7 +199,7 @@ def calibrate(
             scales,
             (scale, foot, gain),
             (s_nom, f_nom, g_nom),
-            jobs=2 if jobs is None else jobs,
+            jobs=jobs,
         )
         c1 = np.array([float(res @ res)])
     else:
@@ -430,7 +433,7 @@ def main(argv: list[str] | None = None) -> int:
             raise CalibrationError(f"{args.layout}: several patches ({names}): pass --patch")
         patch = lay.patch(args.patch) if args.patch else lay.patches[0]
         presses = load_presses(args.presses, patch)
-        cal = calibrate(patch, presses, progress=not args.json, jobs=args.jobs)
+        cal = calibrate(patch, presses, progress=not args.json, jobs=args.jobs or 2)
         if not args.json:
             _print_fit(patch.name, cal)
         path = write_bundle(
