@@ -204,7 +204,7 @@ def main() -> None:
     for n in counts:
         layout = multi_patch_layout(n, tmp)
         bundles = tmp / f"bundles_{n}"
-        build_layout(layout, bundles)
+        build_layout(layout, bundles, jobs=2)
         pub = run_publish_only(n, seconds)
         frames = precompute_frames(layout, n, 6.0)
         sim = run_graph(n, layout, bundles, frames, seconds, full=False)["cpu"]

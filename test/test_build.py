@@ -141,3 +141,28 @@ def test_tikhonov_and_tsvd_parameters_by_a_rule(tmp_path):
     bad["patches"][0]["solver"]["tikhonov"] = "magic"
     with pytest.raises(LayoutError, match=r"solver\.tikhonov: unknown rule 'magic'"):
         parse_layout(bad)
+
+
+def test_a_script_without_a_main_guard_builds_a_layout_of_two_patches(tmp_path):
+    """From Python, build_layout builds in the calling process unless asked for jobs: a pool's
+    forkserver imports the calling script again, which an unguarded script (a user's first
+    try) cannot survive. The command keeps its 2 processes (the test above)."""
+    doc = yaml.safe_load((ROOT / "config" / "hexagon_patch.yaml").read_text())
+    second = yaml.safe_load(yaml.safe_dump(doc["patches"][0]))
+    second["name"], second["frame_id"] = "hexagon_b", "skin_hexagon_b"
+    for m in second["modules"]:
+        m["board"] = int(m["board"]) + 1
+    doc["patches"].append(second)
+    layout = tmp_path / "two.yaml"
+    layout.write_text(yaml.safe_dump(doc))
+    script = tmp_path / "unguarded.py"
+    script.write_text(
+        "from tactile_contact.offline.build import build_layout\n"
+        f"print(sorted(build_layout({str(layout)!r}, {str(tmp_path / 'b')!r}).items()))\n"
+    )
+    r = subprocess.run(
+        [sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.count("'built'") == 2, r.stdout
+    assert "[('hexagon', 'built'), ('hexagon_b', 'built')]" in r.stdout

@@ -324,7 +324,13 @@ def build_layout(
     progress: bool = False,
 ) -> dict[str, str]:
     """Build the bundles of a layout file under ``out_dir``; returns patch → status
-    (``built`` or ``up-to-date``). Raises LayoutError / BundleError / ValueError."""
+    (``built`` or ``up-to-date``). Raises LayoutError / BundleError / ValueError.
+
+    ``jobs``: patches built at once, in processes (None or 1: here, one after another;
+    ``tactile-contact-build`` defaults to 2). The processes start from a forkserver, which
+    imports the calling script as ``__mp_main__``: a script that calls this with ``jobs > 1``
+    at its top level (no ``if __name__ == "__main__":``) would run itself again in each
+    process and break the pool, so from Python more than one is asked for, never assumed."""
     lay = load_layout(layout)
     # Recorded so that loading can tell when the file changed after the build.
     source = str(Path(layout).resolve())
@@ -341,7 +347,7 @@ def build_layout(
     if not todo:
         return status
     bar = None
-    workers = max(1, min(jobs or 2, len(todo)))
+    workers = max(1, min(jobs or 1, len(todo)))
     if progress:
         from tqdm import tqdm
 
@@ -400,7 +406,7 @@ def main(argv: list[str] | None = None) -> int:
             args.layout,
             args.output,
             force=args.force,
-            jobs=args.jobs,
+            jobs=args.jobs or 2,
             patches=args.patch,
             progress=not args.quiet,
         )

@@ -431,7 +431,8 @@ def main(argv: list[str] | None = None) -> int:
     from tactile_contact.offline.bundle import BundleError
 
     try:
-        build_layout(args.layout, args.bundles)  # no-op when the bundles are up to date
+        # (a no-op when the bundles are up to date; this main is a console script: 2 jobs)
+        build_layout(args.layout, args.bundles, jobs=2)
     except (LayoutError, BundleError, OSError, ValueError) as exc:
         print(f"ERROR: {exc}", file=sys.stderr)
         return 1
