@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from tactile_contact.inverse.reconstruction import Reconstructor
 from tactile_contact.inverse.round_contact import (
     FAMILIES,
+    TAXEL_SPAN,
     RoundFit,
     RoundTables,
     fit_round_contact,
@@ -282,8 +283,10 @@ def test_weights_follow_the_per_taxel_noise(tables):
 def _posterior_reference(tables, xy, d, fit, sigma, half, step, near, t):
     """posterior_contact by its definition, in numpy: np.interp along each tabulated row, the
     force's closed-form optimum, weights exp(−χ²/2)·a^(1−t) over the whole lattice; with t > 0,
-    when the mean centre rounds to another lattice point, again over the lattice's bounding
-    box grown to cover it moved there."""
+    over the bounding box of the lattice and the lattice moved onto the brightest taxel when
+    that taxel lies beyond the lattice and within TAXEL_SPAN; else, when the mean centre
+    rounds to another lattice point, again over the lattice's bounding box grown to cover it
+    moved there."""
     local = np.hypot(*(xy - fit.center).T) <= near
     xy, d = xy[local], d[local]
     n = round(half / step)
@@ -317,6 +320,10 @@ def _posterior_reference(tables, xy, d, fit, sigma, half, step, near, t):
             int(np.argmax(family_mass)),
         )
 
+    if t > 0.0:
+        kt = np.rint((xy[np.argmax(d)] - np.asarray(fit.center)) / step).astype(int)
+        if n < np.abs(kt).max() <= round(TAXEL_SPAN / step):
+            return mean(tuple(np.minimum(-n, kt - n)), tuple(np.maximum(n, kt + n)))
     first = mean((-n, -n), (n, n))
     k = np.rint((first[1] - np.asarray(fit.center)) / step).astype(int)
     if t == 0.0 or not k.any():
@@ -334,6 +341,8 @@ def _posterior_reference(tables, xy, d, fit, sigma, half, step, near, t):
         ((1.1e-3, -0.7e-3), 1.5, (3e-4, -2e-4), 0.4),
         ((0.0, 0.0), 0.4, (1.2e-3, 0.7e-3), 1.0),  # the mean 2 lattice steps away: grown
         ((0.0, 0.0), 0.4, (1.2e-3, 0.7e-3), 0.6),
+        ((0.0, 0.0), 0.4, (3.6e-3, 1.1e-3), 1.0),  # the brightest taxel beyond: grown to it
+        ((0.0, 0.0), 0.4, (3.6e-3, 1.1e-3), 0.0),  # t = 0: not
     ],
 )
 def test_posterior_is_its_definition(tables, where, force, off, t):
@@ -356,6 +365,25 @@ def test_posterior_is_its_definition(tables, where, force, off, t):
     assert got.radius == pytest.approx(a, rel=1e-9)
     assert got.family == fam
     assert got.residual == start.residual
+
+
+def test_noisy_posterior_reaches_a_light_press_over_a_lone_taxel(tables):
+    """Noisy readings (log_prior 1) where only one taxel reads: from a least-squares point
+    that is a broad contact 4.5 mm off (its edge over the taxel, stronger), the posterior's
+    lattice reaches the taxel, and the contact comes back over it and near its force; the
+    lattice around that point alone (log_prior 0) stays off it."""
+    xy = SQUARE
+    truth = RoundFit(0.2, (0.0, 0.0), 1, 0.8e-3, 0.0)
+    rng = np.random.default_rng(4)
+    sigma = 2e-6
+    d = tables.predict(truth, xy) + rng.normal(0.0, sigma, len(xy))
+    start = RoundFit(2.0, (4.5e-3, 0.5e-3), 0, 4.0e-3, 0.0)
+    got = posterior_contact(tables, xy, d, start, sigma, log_prior=1.0)
+    # (Grown once towards the mean alone, as before the taxel's lattice: 1.6 mm, 0.40 N.)
+    assert np.hypot(*got.center) < 1.0e-3
+    assert 0.1 < got.force < 0.35
+    stay = posterior_contact(tables, xy, d, start, sigma, log_prior=0.0)
+    assert np.hypot(*stay.center) > 1.4e-3 and stay.force > 0.4  # (the lattice's edge)
 
 
 def test_posterior_prior_blend_is_checked(tables):
