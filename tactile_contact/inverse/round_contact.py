@@ -718,19 +718,20 @@ def posterior_contact(
     centres = _lattice(centre, half, step)
     power = 1.0 - float(log_prior)
     found = None
-    reach = round(half / step)
+    spans_taxel = False
     if log_prior > 0.0 and len(ld):
         # Noisy readings: the lattice also spans the brightest taxel (see the docstring).
         to_taxel = np.rint((lxy[int(np.argmax(ld))] - centre) / step).astype(int)
-        if reach < int(np.abs(to_taxel).max()) <= round(TAXEL_SPAN / step):
+        far = int(np.abs(to_taxel).max())
+        if round(half / step) < far <= round(TAXEL_SPAN / step):
             centres = _grown_lattice(centre, half, step, to_taxel)
-            reach = -1  # (it covers the valley between: not grown again)
+            spans_taxel = True  # (it covers the valley between: not grown again)
     for grown in (False, True):
         mean = posterior_mean(rows, log_radii, families, tables.step, lxy, ld, w2, centres, power)
         if mean[0] == 0.0:
             break
         found = mean
-        if grown or log_prior == 0.0 or reach < 0:
+        if grown or log_prior == 0.0 or spans_taxel:
             break
         shift = np.rint((np.array(mean[2:4]) - centre) / step).astype(int)
         if not shift.any():
