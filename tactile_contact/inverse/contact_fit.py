@@ -29,6 +29,7 @@ from tactile_contact.inverse.contacts import (
     skin_hull,
 )
 from tactile_contact.inverse.readings import Frame
+from tactile_contact.inverse.reductions import median, norm
 from tactile_contact.inverse.round_contact import (
     RoundFit,
     RoundTables,
@@ -221,7 +222,7 @@ class ContactFit:
         # their own (below).
         post = self.count_sigma
         if frame.frames != 1:
-            post = max(float(np.median(s)), FUSED_POSTERIOR_FLOOR * self.count_sigma)
+            post = max(median(s), FUSED_POSTERIOR_FLOOR * self.count_sigma)
         if previous is not None:
             # The posterior spans both families anyway: only the followed one is fitted.
             single = follow_round_contact(
@@ -263,7 +264,7 @@ class ContactFit:
             if misfit > limit:
                 return None
             if len(fits) == 1:
-                followed = Followed(fits[0], misfit, 0, float(np.median(s)))
+                followed = Followed(fits[0], misfit, 0, median(s))
         # The test above is on the least-squares fit (the least χ² the model reaches), not on
         # the posterior mean: the mean of a curved valley lies off its floor, and on the load
         # bench's 12 mm sphere it missed the test by a few percent where the fit passed it
@@ -273,7 +274,7 @@ class ContactFit:
             # (round_contact.posterior_contact) instead of the least-squares point. Its error is
             # the rounding's (one count/√6), not the learnt noise level: unless the contact is
             # followed, the same readings give the same contact whatever frames came before.
-            noise = float(np.median(s))
+            noise = median(s)
             if estimate and followed is not None and followed.age > 0:
                 # A followed frame does not measure the noise again: the last search's.
                 noise = max(noise, followed.noise)
@@ -281,7 +282,7 @@ class ContactFit:
             t = log_prior_blend(noise, self.count_sigma)
             fits = [posterior_contact(self.tables, xy, d, fits[0], post, log_prior=t)]
             pred = fitter.predicted(fits, xy)
-        return RoundContacts(fits, float(np.linalg.norm(pred - d)), followed)
+        return RoundContacts(fits, norm(pred - d), followed)
 
     def _rescan(self, fit: RoundFit, xy: NDArray, d: NDArray, s: NDArray) -> RoundFit:
         """``fit``, or the contact rescanned from its centre when ``fit`` is at least

@@ -27,6 +27,7 @@ import numpy as np
 import scipy.ndimage
 from numpy.typing import ArrayLike, NDArray
 
+from tactile_contact.inverse.reductions import norm
 from tactile_contact.model.elastic import regular_grid_operator
 from tactile_contact.model.elastic.axisymmetric import round_responses
 from tactile_contact.model.grids import disc_quadrature, distance_to_points
@@ -369,7 +370,7 @@ def fit_round_contact(
     _cost, x, y, t, force, fam = best
     if not (found and force > 0):
         return None
-    res = float(np.linalg.norm(pred - d))
+    res = norm(pred - d)
     return RoundFit(float(force), (float(x), float(y)), int(fam), float(math.exp(t)), res)
 
 
@@ -468,7 +469,7 @@ def _round_fit(tables: RoundTables, xy: NDArray, d: NDArray, best: tuple) -> Rou
         return None
     t0, dt = tables.log_grid
     pred = predict(tables.table, fam, t0, dt, tables.step, np.ascontiguousarray(xy), x, y, t, force)
-    res = float(np.linalg.norm(pred - d))
+    res = norm(pred - d)
     return RoundFit(float(force), (float(x), float(y)), int(fam), float(math.exp(t)), res)
 
 
@@ -595,7 +596,7 @@ def follow_round_contact(
         return None
     _cost, x, y, t, force, fam = best
     pred = predict(tables.table, fam, t0, dt, tables.step, np.ascontiguousarray(xy), x, y, t, force)
-    res = float(np.linalg.norm(pred - d))
+    res = norm(pred - d)
     return RoundFit(float(force), (float(x), float(y)), int(fam), float(math.exp(t)), res)
 
 
@@ -710,7 +711,7 @@ def posterior_contact(
         raise ValueError(f"log_prior must be within [0, 1], got {log_prior!r}")
     xy = np.asarray(taxel_xy, dtype=np.float64)
     d = np.asarray(delta, dtype=np.float64)
-    local = np.hypot(*(xy - np.asarray(fit.center)).T) <= near
+    local = np.hypot(xy[:, 0] - fit.center[0], xy[:, 1] - fit.center[1]) <= near
     rows, log_radii, families = tables.profile_rows(radius_stride)
     lxy, ld = np.ascontiguousarray(xy[local]), np.ascontiguousarray(d[local])
     w2 = np.full(len(ld), 1.0 / sigma**2)
