@@ -452,6 +452,37 @@ def test_bundles_deleted_or_replaced_while_running(
     rig.close()
 
 
+def test_a_bundles_signature_changes_with_each_way_it_is_changed(tmp_path: Path) -> None:
+    """bundle_signature alone (the node test above runs it through the node): a file
+    rewritten in place, a file replaced, the folder replaced, a file added, the folder
+    deleted; the same folder looked at twice reads the same."""
+    from tactile_contact.ros.contact_reconstruction import bundle_signature
+
+    folder = tmp_path / "b"
+    folder.mkdir()
+    for name in ("manifest.json", "forward.npy", "inverse.npy"):
+        (folder / name).write_bytes(b"x" * 64)
+    seen = [bundle_signature(folder)]
+    assert seen[0] == bundle_signature(folder)
+    assert [entry[0] for entry in seen[0][1:]] == ["forward.npy", "inverse.npy", "manifest.json"]
+    with (folder / "inverse.npy").open("r+b") as f:
+        f.truncate(10)
+    seen.append(bundle_signature(folder))
+    (folder / "new.npy").write_bytes(b"y")
+    (folder / "new.npy").replace(folder / "forward.npy")
+    seen.append(bundle_signature(folder))
+    (folder / "extra.npy").write_bytes(b"z")
+    seen.append(bundle_signature(folder))
+    shutil.copytree(folder, tmp_path / "c")
+    shutil.rmtree(folder)
+    (tmp_path / "c").rename(folder)
+    seen.append(bundle_signature(folder))
+    assert len(set(seen)) == len(seen)
+    shutil.rmtree(folder)
+    assert bundle_signature(folder) == ()
+    assert bundle_signature(tmp_path / "c") == ()
+
+
 # -- property: whatever the readings, what goes out is finite and never a negative force ------
 _RECON: dict[str, object] = {}
 

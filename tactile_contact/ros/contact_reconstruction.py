@@ -33,6 +33,7 @@ The subscription keeps only the newest frame, so a slow frame never queues old o
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -99,17 +100,20 @@ def load_reconstructor(path: Path, follow: bool = True, fuse: bool = True) -> Re
 
 
 def bundle_signature(path: Path) -> tuple:
-    """What changes when a bundle folder is deleted, replaced or rewritten (() if missing)."""
+    """What changes when a bundle folder is deleted, replaced or rewritten (() if missing):
+    the folder's inode, then each file's name, inode, mtime [ns] and size, by name. (os.scandir
+    rather than pathlib: a diagnostics step looks at one bundle, and pathlib's objects
+    doubled its 11 stat calls' cost, 130 against 64 µs.)"""
     try:
-        folder = path.stat()
-        files = sorted(path.iterdir())
-        return (folder.st_ino, *((f.name, *_stat(f)) for f in files))
+        folder = os.stat(path)
+        with os.scandir(path) as found:
+            files = sorted(found, key=lambda f: f.name)
+        return (folder.st_ino, *((f.name, *_stat(f.stat())) for f in files))
     except OSError:
         return ()
 
 
-def _stat(f: Path) -> tuple[int, int, int]:
-    st = f.stat()
+def _stat(st: os.stat_result) -> tuple[int, int, int]:
     return st.st_ino, st.st_mtime_ns, st.st_size
 
 
