@@ -12,10 +12,9 @@ from numpy.typing import NDArray
 def median(x: NDArray) -> float:
     """np.median of the 1-D array ``x`` of finite values (units kept; a NaN would be sorted
     last, not returned), the same value bit for bit (the middle one, or the mean of the
-    middle two), NaN when ``x`` is empty. Why not np.median: a
-    followed frame's fit takes its readings' median noise twice, and np.median's Python
-    layers cost 25 µs hot and ≈ 100 µs in a worker's cold cache (a tenth of that solve),
-    np.partition ≈ 2 µs."""
+    middle two), NaN when ``x`` is empty. Why not np.median: a followed frame's fit takes
+    its readings' median noise twice, and np.median's Python layers cost 25 µs hot and
+    ≈ 100 µs in a worker's cold cache (a tenth of that solve), np.partition ≈ 2 µs."""
     n = len(x)
     if n == 0:
         return math.nan
