@@ -155,9 +155,9 @@ def driver_node(seconds: float, path: Path) -> dict[str, float]:
     try:
         with Sender():
             time.sleep(0.5)
-            p0 = node._stream._patches[0].published
-            proc, thread = measure(seconds, node._thread.native_id)
-            published = node._stream._patches[0].published - p0
+            p0 = node._links[0].stream._patches[0].published
+            proc, thread = measure(seconds, node._links[0].thread.native_id)
+            published = node._links[0].stream._patches[0].published - p0
     finally:
         executor.shutdown()
         node.destroy_node()

@@ -124,7 +124,7 @@ def main() -> int:
         for s in diags[-1].status
         if s.name.endswith("CAN bus")
     )
-    alive = driver._thread is not None and driver._thread.is_alive()
+    alive = all(link.thread is not None and link.thread.is_alive() for link in driver._links)
     stop.set()
     spinner.join(5.0)
     executor.shutdown()

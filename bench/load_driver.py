@@ -101,7 +101,7 @@ def driver_process(layout: Path, n: int, channel: str, pressed: int, burst: bool
     stop.set()
     sender.join(2.0)
     time.sleep(0.5)  # the driver drains what is queued
-    stream = node._stream
+    stream = node._links[0].stream
     c = stream.assembler.counters
     result = {
         "sent": sent[0],

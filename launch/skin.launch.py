@@ -9,7 +9,8 @@
         use_monitor:=false workers:=1 worker_count:=3 first_worker:=2
 
 One skin_driver per CAN bus of the layout (its patches' ``bus``; docs/layout.md), publishing
-each bus's readings in batches; the reconstruction runs as ``workers`` processes (default:
+each bus's readings in batches, or with ``drivers:=one`` one skin_driver reading every bus into
+one stream of batches; the reconstruction runs as ``workers`` processes (default:
 one per core, at most one per patch), each serving its share of the patches (balanced by
 taxels, the same split on every machine: tactile_contact.ros.workers), restarted when one dies
 (respawn), with ``worker_monitor`` reporting a dead worker's patches stale on /diagnostics.
@@ -65,7 +66,13 @@ ARGUMENTS = [
     ),
     ("worker_count", "", "reconstruction workers over all machines (empty: workers)"),
     ("first_worker", "0", "index of this machine's first worker (another machine runs the others)"),
-    ("use_driver", "true", "start one skin_driver per bus of the layout (false: only reconstruct)"),
+    ("use_driver", "true", "start skin_driver (false: only reconstruct)"),
+    (
+        "drivers",
+        "per_bus",
+        "per_bus: one skin_driver per bus of the layout; one: a single skin_driver reading every "
+        "bus (one receive thread each, one taxel_batches stream: fewer messages and processes)",
+    ),
     ("use_monitor", "true", "start worker_monitor (one per robot: a dead worker on /diagnostics)"),
 ]
 #: A dead worker is started again after this long [s] (launch respawn).
@@ -137,10 +144,34 @@ def _nodes(context: LaunchContext) -> list:
             return simulation_channel(os.environ.get("ROS_DOMAIN_ID", "0"), k)
         return bus  # socketcan: the bus is named after its interface (can0, can1, ...)
 
+    drivers = arg("drivers").perform(context).strip()
+    if drivers not in ("per_bus", "one"):
+        raise ValueError(f"drivers:={drivers!r}: per_bus or one")
     nodes = []
+    if _true(context, "use_driver") and drivers == "one" and not single:
+        nodes.append(
+            Node(
+                package="tactile_contact",
+                executable="skin_driver",
+                name="skin_driver",
+                namespace=arg("namespace"),
+                output="screen",
+                on_exit=ends_launch("skin_driver"),
+                parameters=[
+                    shared("config", "skin_driver.yaml"),
+                    {
+                        "layout": layout,
+                        "interface": interface,
+                        "buses": list(buses),
+                        "channels": [bus_channel(k, bus) for k, bus in enumerate(buses)],
+                    },
+                    common,
+                ],
+            )
+        )
     for k, bus in enumerate(buses):
         suffix = f"_{bus}" if not single else ""
-        if _true(context, "use_driver"):
+        if _true(context, "use_driver") and (drivers == "per_bus" or single):
             nodes.append(
                 Node(
                     package="tactile_contact",

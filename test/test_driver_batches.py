@@ -219,8 +219,131 @@ def test_a_layout_on_several_buses_needs_the_bus_named(ros_context: object, tmp_
         )
 
     refused = driver()
-    assert refused._stream is None  # configure failed (logged: set its bus parameter)
+    assert not refused._links  # configure failed (logged: set its bus parameter)
     refused.destroy_node()
     served = driver(bus="can1")
-    assert served._stream is not None and list(served._pubs) == ["palm"]
+    assert len(served._links) == 1 and list(served._pubs) == ["palm"]
     served.destroy_node()
+
+
+@pytest.mark.ros
+def test_one_driver_serves_several_buses_in_one_stream(ros_context: object, tmp_path: Path) -> None:
+    """``buses``: one driver reads two buses (the same board address on both, at different
+    phases of the period), each reading lands in one batch of the one taxel_batches stream,
+    /diagnostics names each bus, and a bus that fails is reopened while the other goes on."""
+    import yaml
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from tactile_contact.msg import TaxelBatch
+    from tactile_contact.ros.cdr import read_taxel_batch
+    from tactile_contact.ros.common import DIAGNOSTICS_QOS, SENSOR_QOS
+    from tactile_contact.ros.skin_driver import SkinDriver
+    from tactile_contact.sim.simulator import Indentation
+
+    doc = yaml.safe_load(LAYOUT.read_text())
+    doc["patches"][0]["bus"] = "can0"
+    doc["patches"][1]["bus"] = "can1"
+    doc["patches"][1]["modules"][0]["board"] = 0  # the same address as on can0: allowed
+    path = tmp_path / "two_buses.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    layout = load_layout(path)
+    channels = {"can0": "several_a", "can1": "several_b"}
+    params = {"interface": "virtual", "layout": str(path), "buses": list(channels)}
+    params |= {"channels": list(channels.values()), "period_ms": 20, "calibration_samples": 2}
+    params |= {"batch_window_ms": 2.0, "reconnect_interval_s": 0.2, "diagnostics_period_s": 0.2}
+    node = SkinDriver(
+        context=ros_context, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]
+    )
+    assert [link.name for link in node._links] == ["can0", "can1"]
+    listener = Node("several_listener", context=ros_context)
+    batches: list[Any] = []
+    listener.create_subscription(
+        TaxelBatch,
+        "taxel_batches",
+        lambda data: batches.append(read_taxel_batch(data)),
+        SENSOR_QOS,
+        raw=True,
+    )
+    arrays: list[Any] = []
+    listener.create_subscription(DiagnosticArray, "/diagnostics", arrays.append, DIAGNOSTICS_QOS)
+
+    def latest() -> dict[str, dict[str, str]]:
+        """The latest /diagnostics, name (without the node's) → key → value."""
+        return {
+            s.name.split(": ", 1)[1]: {kv.key: kv.value for kv in s.values}
+            | {"_level": str(s.level[0])}
+            for s in (arrays[-1].status if arrays else [])
+        }
+
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    executor.add_node(listener)
+    sims = {p.name: _simulator(p, k) for k, p in enumerate(layout.patches)}
+    touch = {
+        p.name: Indentation.press(None, 1.0, tuple(p.taxel_xy()[0]), start_s=0.2, ramp_s=0.1)
+        for p in layout.patches
+    }
+    senders = {
+        p.name: can.Bus(interface="virtual", channel=channels[p.bus]) for p in layout.patches
+    }
+    stop = threading.Event()
+
+    def send(name: str, phase_s: float) -> None:
+        k = 0
+        t0 = time.monotonic() + phase_s
+        while not stop.is_set():
+            stop.wait(max(0.0, t0 + k * PERIOD_S - time.monotonic()))
+            for m in sims[name].period(touch[name], k * PERIOD_S).messages:
+                senders[name].send(m)
+            k += 1
+
+    threads = [
+        threading.Thread(target=send, args=(name, 0.01 * k), daemon=True)
+        for k, name in enumerate(sims)
+    ]
+    try:
+        assert spin_until(
+            executor, lambda: listener.count_publishers("taxel_batches") > 0, timeout_s=10.0
+        )
+        for t in threads:
+            t.start()
+        assert spin_until(executor, lambda: len(batches) >= 40, timeout_s=20.0)
+        stamps: dict[str, list[int]] = {name: [] for name in sims}
+        for b in batches:
+            assert b.bus == "can0,can1" and len(set(b.patches)) == len(b.patches)
+            for name, stamp in zip(b.patches, b.stamps_ns, strict=True):
+                stamps[name].append(stamp)
+        for name, got in stamps.items():
+            assert len(got) >= 15, f"{name}: {len(got)} readings in {len(batches)} batches"
+            assert got == sorted(set(got)), f"{name}: a reading repeated or out of order"
+        assert spin_until(executor, lambda: "CAN bus can1" in latest(), timeout_s=5.0)
+        now_diag = latest()
+        for bus, channel in channels.items():
+            status = now_diag[f"CAN bus {bus}"]
+            assert status["bus"] == f"virtual:{channel}" and status["_level"] == "0", status
+            assert int(now_diag[f"frames {bus}"]["readings"]) > 0
+        # the second bus fails: reported and reopened, the first bus's readings go on
+        node._links[1].bus.shutdown()
+        assert spin_until(
+            executor,
+            lambda: latest().get("CAN bus can1", {}).get("reconnects") == "1",
+            timeout_s=5.0,
+        ), latest().get("CAN bus can1")
+        assert latest()["CAN bus can0"]["reconnects"] == "0"
+        n = len(batches)
+        assert spin_until(executor, lambda: len(batches) >= n + 20, timeout_s=5.0)
+        assert {name for b in batches[n:] for name in b.patches} == set(sims)
+        assert set(node.published()) == set(sims) and node.bus_opened
+    finally:
+        stop.set()
+        for t in threads:
+            if t.is_alive():
+                t.join(2.0)
+        executor.shutdown()
+        node.destroy_node()
+        listener.destroy_node()
+        for bus in senders.values():
+            bus.shutdown()

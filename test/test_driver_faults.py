@@ -97,7 +97,7 @@ def test_fuzzed_traffic_every_kind_counted_nothing_lost_nothing_invalid(
     assert frames["incomplete_periods"] == "0" and frames["orphan_b"] == "0"
     assert all_finite(h.taxels)
     assert bus["internal_errors"] == "0"
-    assert h.driver._thread is not None and h.driver._thread.is_alive()
+    assert h.driver._links[0].thread is not None and h.driver._links[0].thread.is_alive()
 
 
 # -- a module goes silent and comes back -------------------------------------------------------
@@ -212,7 +212,7 @@ def test_interface_removed_is_reported_and_reopened_by_itself(
     # The interface disappears under the driver: python-can's bus object is shut down and
     # every receive raises, as a socketcan recv does when can0 goes down or is removed.
     removed = time.monotonic()
-    h.driver._bus.shutdown()
+    h.driver._links[0].bus.shutdown()
     assert h.spin_until(lambda: latest(h, "CAN bus") == "2", 2.0)
     assert h.diag()["CAN bus"]["_message"].startswith("closed, reopening")
     assert h.spin_until(lambda: h.diag()["CAN bus"]["reconnects"] == "1", 3.0)

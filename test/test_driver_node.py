@@ -10,6 +10,7 @@ known ΔC on every taxel without building the fine forward model. Periods are 20
 
 from __future__ import annotations
 
+import itertools
 import math
 import threading
 import time
@@ -75,6 +76,9 @@ def press(force: float = 6.0, start_s: float = 0.3, hold_s: float = 0.6) -> Inde
     )
 
 
+_LISTENERS = itertools.count()
+
+
 class Harness:
     """A SkinDriver plus a listener on one executor; frames are sent from a thread."""
 
@@ -101,7 +105,8 @@ class Harness:
         self.channel = channel
         overrides = [Parameter(k, value=v) for k, v in values.items()]
         self.driver = SkinDriver(context=ctx, parameter_overrides=overrides)
-        self.listener = Node("listener", context=ctx)
+        # (a name of its own: wait_matched looks for this listener, not a previous test's)
+        self.listener = Node(f"listener_{next(_LISTENERS)}", context=ctx)
         self.taxels: list[Any] = []
         self.diags: list[Any] = []
         deep = QoSProfile(depth=2000, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -129,7 +134,16 @@ class Harness:
         pub = self.driver._pubs["hexagon"]
 
         def matched() -> bool:
-            return pub.get_subscription_count() > 0 and self.sub.get_publisher_count() > 0
+            # This listener's reader seen by the driver, and a writer of the driver by it: a
+            # count alone was met by a previous test's endpoints, and the first messages of
+            # the run were lost (67 of 70 TaxelArrays, the driver had published 70).
+            readers = self.driver.get_subscriptions_info_by_topic("hexagon/taxels")
+            writers = self.listener.get_publishers_info_by_topic("hexagon/taxels")
+            return (
+                pub.get_subscription_count() > 0
+                and any(r.node_name == self.listener.get_name() for r in readers)
+                and any(w.node_name == self.driver.get_name() for w in writers)
+            )
 
         assert self.spin_until(matched, 10.0), "no match"
         self.spin_for(0.1)  # (discovery completes on both sides)
@@ -226,7 +240,7 @@ def test_delta_c_matches_simulated_truth(harness_factory: Any) -> None:
     # driver's receive thread gives one or two frames more, never fewer)
     assert done, (
         f"{len(h.taxels)} TaxelArrays for {len(periods)} periods, still sending: {h.sending()}; "
-        f"driver: {h.driver.summary()}, {h.driver._stream.assembler.counters}"
+        f"driver: {h.driver.summary()}, {h.driver._links[0].stream.assembler.counters}"
     )
     truths = truth_by_stamp(periods)
     valid = patch().valid_mask()
@@ -268,7 +282,11 @@ def test_replays_candump_log(harness_factory: Any, tmp_path: Path) -> None:
     assert h.driver.trigger_activate() == TransitionCallbackReturn.SUCCESS
     ok = h.spin_until(lambda: len(h.taxels) >= len(truths), 10.0)
     missing = sorted({round(t.t / PERIOD_S) for t in truths} - {stamp_index(m) for m in h.taxels})
-    assert ok, (missing, h.driver._stream._patches[0].published, [stamp_index(m) for m in h.taxels])
+    assert ok, (
+        missing,
+        h.driver._links[0].stream._patches[0].published,
+        [stamp_index(m) for m in h.taxels],
+    )
     elapsed = time.monotonic() - t0
     assert elapsed >= 0.7 * len(truths) * PERIOD_S, "replay is paced by the log's timestamps"
     got = {stamp_index(m): bytes(m.raw) for m in h.taxels}
@@ -503,19 +521,19 @@ def test_lifecycle_cycle_stops_and_restarts_publishing(harness_factory: Any) -> 
     assert abs(stamp - time.time()) < 5.0, "stamp_source now: node clock, not the frames' 0..1 s"
     assert d.trigger_deactivate() == ok
     assert h.spin_until(lambda: not h.sending(), 10.0)
-    published = d._stream._patches[0].published  # final: the receive thread has stopped
+    published = d._links[0].stream._patches[0].published  # final: the receive thread has stopped
     # Messages published before deactivation may still be in flight under load.
     assert h.spin_until(lambda: len(h.taxels) >= published, 10.0)
     n = len(h.taxels)
     h.send(p.messages for p in simulator().periods(None, 0.2, start_s=1.0))
     h.spin_for(0.4)
     assert h.spin_until(lambda: not h.sending(), 10.0)  # all queued before reactivation
-    assert len(h.taxels) == n and d._stream._patches[0].published == published, "inactive"
+    assert len(h.taxels) == n and d._links[0].stream._patches[0].published == published, "inactive"
     assert d.trigger_activate() == ok  # frames queued while inactive are dropped, not published
     h.spin_for(0.2)
-    assert len(h.taxels) == n and d._stream._patches[0].published == published
+    assert len(h.taxels) == n and d._links[0].stream._patches[0].published == published
     assert d.trigger_deactivate() == ok
-    assert d.trigger_cleanup() == ok and d._bus is None
+    assert d.trigger_cleanup() == ok and d._links[0].bus is None
     assert d.trigger_configure() == ok
     h.wait_matched()
     assert d.trigger_activate() == ok

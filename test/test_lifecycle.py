@@ -246,17 +246,17 @@ def test_driver_lifecycle_transitions_20_times_over_its_services(
             transition(Transition.TRANSITION_DEACTIVATE)
             assert state() == "inactive"
             transition(Transition.TRANSITION_CLEANUP)
-            assert state() == "unconfigured" and node._bus is None
+            assert state() == "unconfigured" and all(link.bus is None for link in node._links)
             assert not any(t.name == "skin_rx" for t in threading.enumerate())
             transition(Transition.TRANSITION_CONFIGURE)
             transition(Transition.TRANSITION_ACTIVATE)
             assert state() == "active"
             time.sleep(0.05)  # frames flow, the receive thread publishes
         assert {t.ident for t in threading.enumerate() if t.is_alive()} - threads_active <= {
-            node._thread.ident
+            node._links[0].thread.ident
         }
         transition(Transition.TRANSITION_ACTIVE_SHUTDOWN)
-        assert state() == "finalized" and node._bus is None
+        assert state() == "finalized" and all(link.bus is None for link in node._links)
     finally:
         stop.set()
         spinner.join(5.0)

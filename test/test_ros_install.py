@@ -410,8 +410,83 @@ def _launch_until_contact(workspace: Path, ros_context: object, arguments: str) 
     return launch.output
 
 
+ROBOT_SKIN = "install/tactile_contact/share/tactile_contact/config/robot_skin.yaml"
+
+
+@pytest.fixture(scope="module")
+def robot_bundles(workspace: Path) -> Path:
+    """config/robot_skin.yaml's bundles (forearm and palm), built with the installed tool."""
+    out = workspace / "robot_bundles"
+    done = _run(workspace, f"tactile-contact-build {ROBOT_SKIN} -o {out}", timeout_s=600.0)
+    assert done.returncode == 0, done.stdout + done.stderr
+    return out
+
+
+def test_ros2_launch_one_driver_reads_every_bus(
+    workspace: Path, robot_bundles: Path, ros_context: object
+) -> None:
+    """``drivers:=one`` on a layout of two buses (robot_skin.yaml with the palm moved to can1:
+    the same bundles, a bus is wiring): one skin_driver process reads both simulated buses,
+    both patches' contacts arrive, /diagnostics reports each bus OK; Ctrl-C ends it all."""
+    _require_ros2()
+    import yaml
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from tactile_contact.msg import ContactArray
+
+    doc = yaml.safe_load((workspace / ROBOT_SKIN).read_text())
+    doc["patches"][0]["bus"], doc["patches"][1]["bus"] = "can0", "can1"
+    layout = workspace / "two_buses.yaml"
+    layout.write_text(yaml.safe_dump(doc))
+    launch = Shell(
+        workspace,
+        "ros2 launch tactile_contact skin.launch.py use_simulator:=true scenario:=press "
+        f"layout:={layout} bundles:={robot_bundles} workers:=1 drivers:=one",
+    )
+    node = Node("one_driver_probe", context=ros_context)
+    served: set[str] = set()
+    levels: dict[str, int] = {}
+    node.create_subscription(
+        ContactArray,
+        "/contacts",
+        lambda m: served.update(m.patches),
+        QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT),
+    )
+
+    def on_diag(m: DiagnosticArray) -> None:
+        for st in m.status:
+            levels[st.name] = st.level[0] if isinstance(st.level, bytes) else int(st.level)
+
+    node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 50)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    buses = ("skin_driver: CAN bus can0", "skin_driver: CAN bus can1")
+
+    def ready() -> bool:
+        return {"forearm", "palm"} <= served and all(levels.get(b) == 0 for b in buses)
+
+    try:
+        end = time.monotonic() + 300.0
+        while time.monotonic() < end and launch.proc.poll() is None and not ready():
+            executor.spin_once(timeout_sec=0.1)
+        assert ready(), (served, levels, launch.output)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        code = launch.interrupt()
+    assert code == 0, launch.output
+    assert len(re.findall(r"\[skin_driver-\d+\]: process started", launch.output)) == 1
+    assert len(re.findall(r"\[skin_simulator[\w-]*\]: process started", launch.output)) == 2
+    for bad in BAD_OUTPUT:
+        assert bad not in launch.output, launch.output
+    assert not launch.leftovers(), f"processes left running:\n{launch.output}"
+
+
 def test_ros2_launch_with_two_workers_a_killed_one_is_reported_and_respawned(
-    workspace: Path, ros_context: object
+    workspace: Path, robot_bundles: Path, ros_context: object
 ) -> None:
     """``workers:=2`` on a layout of two patches (robot_skin.yaml: forearm and palm, one bus):
     each worker serves one patch; a worker killed (SIGKILL) has its patch STALE on
@@ -425,10 +500,8 @@ def test_ros2_launch_with_two_workers_a_killed_one_is_reported_and_respawned(
 
     from tactile_contact.msg import ContactArray, ReconstructionWorker
 
-    out = workspace / "robot_bundles"
-    layout = "install/tactile_contact/share/tactile_contact/config/robot_skin.yaml"
-    done = _run(workspace, f"tactile-contact-build {layout} -o {out}", timeout_s=600.0)
-    assert done.returncode == 0, done.stdout + done.stderr
+    out = robot_bundles
+    layout = ROBOT_SKIN
     group = f"239.{random.randint(1, 254)}.{random.randint(1, 254)}.{random.randint(1, 254)}"
     port = 20000 + (os.getpid() + 7) % 20000
     launch = Shell(

@@ -19,6 +19,10 @@ PARAMETERS: tuple[tuple[str, Any, str, dict[str, Any]], ...] = (
      "(of its bus)", {}),
     ("bus", "", "the layout bus this driver serves (its patches); empty = the layout's only "
      "bus", {}),
+    ("buses", cm.STRING_ARRAY_EMPTY, "the layout buses this driver serves, each with its own "
+     "receive thread, all in one taxel_batches stream (instead of bus)", {}),
+    ("channels", cm.STRING_ARRAY_EMPTY, "python-can channel of each of buses (same order); "
+     "empty = channel for one bus, else each bus's name (socketcan: can0, can1, ...)", {}),
     ("batch_window_ms", 2.0, "taxel_batches: the readings completed within this long of the "
      "first one not yet published go out in one TaxelBatch (sooner once every patch has one); "
      "0 = each receive's at once", {"unit": "ms", "float_range": (0.0, 100.0)}),

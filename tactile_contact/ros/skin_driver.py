@@ -32,6 +32,7 @@ from __future__ import annotations
 import array
 import threading
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -91,6 +92,27 @@ def default_layout_path() -> Path:
     return Path(__file__).resolve().parents[2] / "config" / "hexagon_patch.yaml"
 
 
+@dataclass
+class _Link:
+    """One CAN bus the driver serves: its own stream, error policy, backoff and receive thread
+    (module ids repeat from bus to bus; a bus that fails leaves the others alone)."""
+
+    name: str  # the layout's bus ("" for a layout's only, unnamed bus)
+    channel: str  # its python-can channel
+    stream: SkinStream
+    policy: BusErrorPolicy
+    backoff: Backoff
+    bus: Any = None  # the open python-can bus (None while closed)
+    next_attempt: float = 0.0  # monotonic time of the next reopen attempt [s]
+    problem: str = ""  # why the bus is closed ("" while open)
+    opened: bool = False  # the bus was open at least once
+    config_sent: bool = False
+    last_frame: float = -1.0  # monotonic time of the last frame received (-1: none yet)
+    finished_logged: bool = False
+    thread: threading.Thread | None = None
+    patches: list[str] = field(default_factory=list)
+
+
 class SkinDriver(LifecycleNode):
     """The ``skin_driver`` lifecycle node (see the module docstring).
 
@@ -105,18 +127,12 @@ class SkinDriver(LifecycleNode):
 
     def __init__(self, node_name: str = "skin_driver", **kwargs: Any) -> None:
         # State first: a constructor that fails on a bad parameter still gets destroy_node().
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the streams and error policies (any receive thread)
+        self._batch_lock = threading.Lock()  # the batcher and the publishers' use of it
         self._diag_lock = threading.Lock()  # the publisher is destroyed under it, used under it
         self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._bus: Any = None
-        self._stream: SkinStream | None = None
-        self._policy: BusErrorPolicy | None = None
-        self._backoff: Backoff | None = None
-        self._next_attempt = 0.0  # monotonic time of the next reopen attempt [s]
-        self._bus_problem = ""  # why the bus is closed ("" while open)
-        self._bus_opened = False  # the bus was open at least once
-        self._config_sent = False
+        self._links: list[_Link] = []  # the buses served, in the order of the bus parameters
+        self._batch_bus = ""  # the TaxelBatch's bus field
         self._pubs: dict[str, Publisher] = {}
         self._batch_pub: Publisher | None = None
         self._batcher: Batcher | None = None
@@ -128,8 +144,6 @@ class SkinDriver(LifecycleNode):
         self._diag_timer: Timer | None = None
         self._tare_srv: Any = None
         self._params: dict[str, Any] = {}
-        self._finished_logged = False
-        self._last_frame = -1.0  # monotonic time of the last frame received (-1: none yet)
         self._ids_arrays: dict[str, array.array] = {}  # patch → its taxel ids, as sent
         self._event_log: dict[str, tuple[float, int]] = {}  # kind → (last logged, unsaid)
         self._warned: dict[str, float] = {}  # kind → monotonic time last logged
@@ -162,25 +176,50 @@ class SkinDriver(LifecycleNode):
             self._close()
             return FAILURE
 
+    def _served(self, layout_path: Path, layout: Any) -> list[tuple[str, str]]:
+        """The buses this driver serves and their channels, from ``bus``, ``buses`` and
+        ``channels`` (ValueError naming the layout and the parameter otherwise)."""
+        p = self._params
+        buses = layout.buses()
+        if p["bus"] and p["buses"]:
+            raise ValueError("set bus (one bus) or buses (several), not both")
+        served = list(p["buses"]) or ([p["bus"]] if p["bus"] else [])
+        if not served:
+            if len(buses) > 1:
+                raise ValueError(
+                    f"{layout_path}: patches on {len(buses)} buses {list(buses)}: set this "
+                    "driver's bus parameter (one bus) or buses (several; the launch file "
+                    "starts one driver per bus, or one for all with drivers:=one)"
+                )
+            served = [buses[0]]
+        unknown = [b for b in served if b not in buses]
+        if unknown or len(set(served)) < len(served):
+            raise ValueError(
+                f"{layout_path}: bus(es) {unknown or served} unknown or repeated (buses: {buses})"
+            )
+        if p["replay_file"] and len(served) > 1:
+            raise ValueError("replay_file replays one bus: serve one bus (the bus parameter)")
+        channels = list(p["channels"])
+        if channels and len(channels) != len(served):
+            raise ValueError(f"{len(channels)} channels for {len(served)} buses {served}")
+        if not channels:
+            # (socketcan names an interface after its bus: can0, can1, ...)
+            channels = [p["channel"]] if len(served) == 1 else served
+        return list(zip(served, channels, strict=True))
+
     def _configure(self) -> TransitionCallbackReturn:
         p = {n: self._params_value(n) for n in self._names}
         self._params = p
         layout_path = Path(p["layout"]) if p["layout"] else default_layout_path()
         layout = load_layout(layout_path)  # LayoutError names file, key and problem
-        buses = layout.buses()
-        if p["bus"] and p["bus"] not in buses:
-            raise ValueError(f"{layout_path}: no patch on bus {p['bus']!r} (buses: {buses})")
-        if not p["bus"] and len(buses) > 1:
-            raise ValueError(
-                f"{layout_path}: patches on {len(buses)} buses {list(buses)}: one driver serves "
-                "one bus (set its bus parameter; the launch file starts one per bus)"
-            )
-        on_bus = [pl.name for pl in layout.patches if pl.bus == (p["bus"] or buses[0])]
+        served = self._served(layout_path, layout)
+        names = [b for b, _ in served]
+        on_bus = [pl.name for pl in layout.patches if pl.bus in names]
         wanted = p["patches"] or on_bus
         patches = [layout.patch(name) for name in wanted]  # KeyError lists the known names
         elsewhere = [pl.name for pl in patches if pl.name not in on_bus]
         if elsewhere:
-            raise ValueError(f"{layout_path}: patches {elsewhere} are not on bus {p['bus']!r}")
+            raise ValueError(f"{layout_path}: patches {elsewhere} are not on bus(es) {names}")
         config = BaselineConfig(
             calibration_samples=p["calibration_samples"],
             drift_time_constant_s=p["drift_time_constant_s"],
@@ -201,35 +240,44 @@ class SkinDriver(LifecycleNode):
             if p["accept_class3"]
             else (codec.CLASS_SKIN,)
         )
-        self._stream = SkinStream(
-            patches,
-            id_classes=classes,
-            baseline=config,
-            farad_per_count=p["farad_per_count"] or None,
-            max_wait_s=p["max_wait_ms"] * 1e-3,
-            module_timeout_s=p["module_timeout_ms"] * 1e-3,
-            period_s=p["period_ms"] * 1e-3,
-            pair_window_s=p["pair_window_ms"] * 1e-3,
-            duplicate_window_s=p["duplicate_window_ms"] * 1e-3,
-            strict_status=p["strict_status"],
-        )
-        self._policy = BusErrorPolicy(p["reconnect_after_errors"])
-        self._backoff = Backoff(p["reconnect_interval_s"], p["reconnect_max_interval_s"])
-        self._config_sent = False
-        try:
-            self._bus = open_bus(**self._bus_config())
-            self._bus_opened, self._bus_problem = True, ""
-        except Exception as exc:  # python-can raises many types for a bus it cannot open
-            text = f"cannot open CAN bus {self._bus_name()}: {type(exc).__name__}: {exc}"
-            if not may_come_up(exc, p["replay_file"]):
-                self.get_logger().error(text)
-                return FAILURE
-            self._bus_problem = text
-            self._next_attempt = time.monotonic() + self._backoff.wait_s
-            self.get_logger().error(
-                f"{text}; retrying, first in {self._backoff.wait_s:g} s, then up to every "
-                f"{p['reconnect_max_interval_s']:g} s (state in /diagnostics)"
+        self._links = []
+        for name, channel in served:
+            mine = [pl for pl in patches if pl.bus == name]
+            if not mine:  # (the patches parameter left none of this bus)
+                continue
+            stream = SkinStream(
+                mine,
+                id_classes=classes,
+                baseline=config,
+                farad_per_count=p["farad_per_count"] or None,
+                max_wait_s=p["max_wait_ms"] * 1e-3,
+                module_timeout_s=p["module_timeout_ms"] * 1e-3,
+                period_s=p["period_ms"] * 1e-3,
+                pair_window_s=p["pair_window_ms"] * 1e-3,
+                duplicate_window_s=p["duplicate_window_ms"] * 1e-3,
+                strict_status=p["strict_status"],
             )
+            policy = BusErrorPolicy(p["reconnect_after_errors"])
+            backoff = Backoff(p["reconnect_interval_s"], p["reconnect_max_interval_s"])
+            link = _Link(name, channel, stream, policy, backoff, patches=[pl.name for pl in mine])
+            self._links.append(link)
+        self._batch_bus = p["bus"] if len(self._links) == 1 else ",".join(names)
+        for link in self._links:
+            try:
+                link.bus = open_bus(**self._bus_config(link))
+                link.opened, link.problem = True, ""
+            except Exception as exc:  # python-can raises many types for a bus it cannot open
+                text = f"cannot open CAN bus {self._bus_name(link)}: {type(exc).__name__}: {exc}"
+                if not may_come_up(exc, p["replay_file"]):
+                    self.get_logger().error(text)
+                    self._close()
+                    return FAILURE
+                link.problem = text
+                link.next_attempt = time.monotonic() + link.backoff.wait_s
+                self.get_logger().error(
+                    f"{text}; retrying, first in {link.backoff.wait_s:g} s, then up to every "
+                    f"{p['reconnect_max_interval_s']:g} s (state in /diagnostics)"
+                )
         for pl in patches:
             self._pubs[pl.name] = self.create_lifecycle_publisher(
                 TaxelArray, f"{pl.name}/taxels", cm.SENSOR_QOS
@@ -241,74 +289,75 @@ class SkinDriver(LifecycleNode):
         self._tare_srv = self.create_service(Trigger, "~/tare", self._on_tare)
         self.get_logger().info(
             f"configured: layout {layout_path}, patches {[pl.name for pl in patches]}, "
-            f"{sum(len(pl.modules) for pl in patches)} modules, bus {self._bus_name()}"
+            f"{sum(len(pl.modules) for pl in patches)} modules, "
+            + ", ".join(f"bus {self._bus_name(link)}" for link in self._links)
         )
         return SUCCESS
 
-    def _bus_name(self) -> str:
+    def _bus_name(self, link: _Link) -> str:
         p = self._params
         if p["replay_file"]:
             return f"replay of {p['replay_file']}"
-        return f"{p['interface']}:{p['channel']}"
+        return f"{p['interface']}:{link.channel}"
 
-    def _bus_config(self) -> dict[str, Any]:
+    def _bus_config(self, link: _Link) -> dict[str, Any]:
         """Keyword arguments of :func:`open_bus` from the parameters."""
         p = self._params
-        assert self._stream is not None
         return {
             "interface": p["interface"],
-            "channel": p["channel"],
+            "channel": link.channel,
             "bitrate": p["bitrate"],
             "replay_file": p["replay_file"],
             "replay_max_gap_s": p["replay_max_gap_s"],
-            "can_filters": self._stream.can_filters() if p["bus_filter"] else None,
+            "can_filters": link.stream.can_filters() if p["bus_filter"] else None,
         }
 
-    def _open_bus(self) -> can.BusABC | Any | None:
+    def _open_bus(self, link: _Link) -> can.BusABC | Any | None:
         """The bus reopened, or None; a new reason for failing is logged (once per reason)."""
         try:
-            return open_bus(**self._bus_config())
+            return open_bus(**self._bus_config(link))
         except Exception as exc:  # python-can raises many types for a bus it cannot open
-            text = f"cannot open CAN bus {self._bus_name()}: {type(exc).__name__}: {exc}"
-            if text != self._bus_problem:
+            text = f"cannot open CAN bus {self._bus_name(link)}: {type(exc).__name__}: {exc}"
+            if text != link.problem:
                 self.get_logger().error(f"{text}; retrying (state in /diagnostics)")
-            self._bus_problem = text
+            link.problem = text
             return None
 
     @property
     def bus_opened(self) -> bool:
-        """Whether the bus was open at least once since configure."""
-        return self._bus_opened
+        """Whether every bus served was open at least once since configure."""
+        return bool(self._links) and all(link.opened for link in self._links)
 
     def published(self) -> dict[str, int]:
         """Taxel messages published per patch since configure."""
-        if self._stream is None:
-            return {}
         with self._lock:
-            return {name: n for name, n, _ in self._stream.publications()}
+            return {name: n for link in self._links for name, n, _ in link.stream.publications()}
 
     def bus_problem(self) -> str:
-        """Why the bus is closed now ("" while it is open)."""
-        return self._bus_problem if self._bus is None else ""
+        """Why a bus is closed now ("" while every one is open)."""
+        return "; ".join(link.problem for link in self._links if link.bus is None and link.problem)
 
     def summary(self) -> list[str]:
-        """Lines for the end of a run: the bus (frames, rejected) and each patch's messages."""
-        if self._stream is None:
-            return [f"bus {self._bus_name() if self._params else '?'}: not configured"]
-        with self._lock:
-            c = self._stream.assembler.counters
-            frames, rejected = c.frames, c.rejected
-            states = self._stream.publications()
-        head = f"bus {self._bus_name()}: {frames} CAN frames, {rejected} rejected"
-        if not self._bus_opened:
-            head += f"; never opened ({self._bus_problem})"
-        elif self._bus is None:
-            head += f"; closed now ({self._bus_problem})"
-        return [head] + [
-            f"{name}: {n} taxel messages published"
-            + (f" ({stale} with silent or late modules)" if stale else "")
-            for name, n, stale in states
-        ]
+        """Lines for the end of a run: each bus (frames, rejected) and its patches' messages."""
+        if not self._links:
+            return [f"bus {self._params.get('channel', '?')}: not configured"]
+        lines = []
+        for link in self._links:
+            with self._lock:
+                c = link.stream.assembler.counters
+                frames, rejected = c.frames, c.rejected
+                states = link.stream.publications()
+            head = f"bus {self._bus_name(link)}: {frames} CAN frames, {rejected} rejected"
+            if not link.opened:
+                head += f"; never opened ({link.problem})"
+            elif link.bus is None:
+                head += f"; closed now ({link.problem})"
+            lines += [head] + [
+                f"{name}: {n} taxel messages published"
+                + (f" ({stale} with silent or late modules)" if stale else "")
+                for name, n, stale in states
+            ]
+        return lines
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         # Publishers first: the receive thread may publish its first message at once.
@@ -316,30 +365,39 @@ class SkinDriver(LifecycleNode):
         if result != SUCCESS:
             return result
         try:
-            if self._params["send_config"] and self._bus is not None:
-                self._send_config()
-            self._drain()
             self._stop.clear()
-            self._finished_logged = False
-            self._thread = threading.Thread(target=self._receive_loop, name="skin_rx", daemon=True)
-            self._thread.start()
+            for link in self._links:
+                if self._params["send_config"] and link.bus is not None:
+                    self._send_config(link)
+                self._drain(link)
+                link.finished_logged = False
+                link.thread = threading.Thread(
+                    target=self._receive_loop,
+                    args=(link,),
+                    name=f"skin_rx_{link.name}" if link.name else "skin_rx",
+                    daemon=True,
+                )
+                link.thread.start()
         except Exception as exc:
             self.get_logger().error(f"activate failed: {type(exc).__name__}: {exc}")
+            self._stop_thread()
             super().on_deactivate(state)
             return FAILURE
         self.get_logger().info("active: publishing")
         return SUCCESS
 
-    def _drain(self) -> None:
+    def _drain(self, link: _Link) -> None:
         """Drop frames queued while inactive (old data must not come out with old stamps)."""
-        if isinstance(self._bus, ReplayBus) or self._stream is None or self._bus is None:
+        if isinstance(link.bus, ReplayBus) or link.bus is None:
             return
         dropped = 0
-        while dropped < 1_000_000 and self._bus.recv(0.0) is not None:
+        while dropped < 1_000_000 and link.bus.recv(0.0) is not None:
             dropped += 1
-        self._stream.assembler.reset()
+        link.stream.assembler.reset()
         if dropped:
-            self.get_logger().info(f"dropped {dropped} frames queued while inactive")
+            self.get_logger().info(
+                f"dropped {dropped} frames queued while inactive on {self._bus_name(link)}"
+            )
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._stop_thread()
@@ -359,18 +417,20 @@ class SkinDriver(LifecycleNode):
 
     def _stop_thread(self) -> None:
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-            self._thread = None
+        for link in self._links:
+            if link.thread is not None:
+                link.thread.join(timeout=5.0)
+                link.thread = None
 
     def _close(self) -> None:
-        """Stop the thread, close the bus, destroy what configure created."""
+        """Stop the threads, close the buses, destroy what configure created."""
         self._stop_thread()
-        bus, self._bus = self._bus, None
-        if bus is not None:
-            error = close_bus(bus)
-            if error:
-                self.get_logger().warning(f"closing the bus: {error}")
+        for link in self._links:
+            bus, link.bus = link.bus, None
+            if bus is not None:
+                error = close_bus(bus)
+                if error:
+                    self.get_logger().warning(f"closing the bus {self._bus_name(link)}: {error}")
         for pub in self._pubs.values():
             self.destroy_lifecycle_publisher(pub)
         self._pubs.clear()
@@ -394,46 +454,45 @@ class SkinDriver(LifecycleNode):
         super().destroy_node()
 
     # -- bus ------------------------------------------------------------------------------
-    def _send_config(self) -> None:
+    def _send_config(self, link: _Link) -> None:
         """SET_BRD_CFG, SET_TRIANG_CFG (all triangles of each board) then SET_TXMODE start."""
-        p, stream = self._params, self._stream
-        assert stream is not None
-        self._config_sent = True
-        for board, (first, last, shift, no_load) in sorted(stream.board_ranges().items()):
+        p = self._params
+        link.config_sent = True
+        for board, (first, last, shift, no_load) in sorted(link.stream.board_ranges().items()):
             for cmd in (
                 codec.set_board_config(board, p["skin_type"], p["period_ms"], no_load),
                 codec.set_triangle_config(board, first, last, shift, True, p["cdc_offset"]),
                 codec.set_tx_mode(board, True),
             ):
-                self._bus.send(cmd.to_message(), timeout=0.1)
+                link.bus.send(cmd.to_message(), timeout=0.1)
             self.get_logger().info(
                 f"sent configuration to board {board} (triangles {first}..{last})"
+                + (f" on bus {link.name}" if len(self._links) > 1 else "")
             )
 
-    def _receive_loop(self) -> None:
+    def _receive_loop(self, link: _Link) -> None:
         """Receive, decode and publish until stopped; never raises."""
         log = self.get_logger()
         while not self._stop.is_set():
             try:
-                self._receive_step()
+                self._receive_step(link)
             except Exception as exc:  # the thread must outlive any bug: count, say, go on
-                if self._policy is not None:
-                    with self._lock:
-                        self._policy.internal_errors += 1
+                with self._lock:
+                    link.policy.internal_errors += 1
                 log.error(
                     f"receive loop: {type(exc).__name__}: {exc}",
                     throttle_duration_sec=WARN_THROTTLE_S,
                 )
                 self._stop.wait(0.01)
 
-    def _receive_step(self) -> None:
-        """One receive (or one reopen attempt) and what it completes."""
-        p, stream, policy = self._params, self._stream, self._policy
-        assert stream is not None and policy is not None
+    def _receive_step(self, link: _Link) -> None:
+        """One receive on ``link``'s bus (or one reopen attempt) and what it completes."""
+        p, stream, policy = self._params, link.stream, link.policy
         log = self.get_logger()
-        bus = self._bus
+        several = len(self._links) > 1
+        bus = link.bus
         if bus is None:
-            self._reopen()
+            self._reopen(link)
             return
         timeout = p["receive_timeout_s"]
         batcher = self._batcher
@@ -447,8 +506,11 @@ class SkinDriver(LifecycleNode):
             # that failed to parse what the adapter sent.
             with self._lock:
                 reconnect = policy.error(exc)
-            if self._due("bus error"):
-                log.warning(f"CAN bus error ({policy.errors} so far): {type(exc).__name__}: {exc}")
+            if self._due(f"bus error {link.name}"):
+                log.warning(
+                    f"CAN bus {self._bus_name(link)} error ({policy.errors} so far): "
+                    f"{type(exc).__name__}: {exc}"
+                )
             gone = interface_gone(exc)
             if reconnect or gone:
                 # A socketcan socket reports ENETDOWN / ENODEV once, then waits quietly: the
@@ -458,18 +520,18 @@ class SkinDriver(LifecycleNode):
                     if gone
                     else f"{p['reconnect_after_errors']} consecutive bus errors"
                 )
-                self._drop_bus(why)
+                self._drop_bus(link, why)
             else:
                 self._stop.wait(min(p["receive_timeout_s"], 0.01))
             return
         policy.ok()
         if msg is not None:
-            self._last_frame = time.monotonic()
-            if self._backoff is not None and self._backoff.failures and not msg.is_error_frame:
-                self._backoff.reset()  # frames flow: the next failure starts short again
-        if msg is None and getattr(bus, "finished", False) and not self._finished_logged:
+            link.last_frame = time.monotonic()
+            if link.backoff.failures and not msg.is_error_frame:
+                link.backoff.reset()  # frames flow: the next failure starts short again
+        if msg is None and getattr(bus, "finished", False) and not link.finished_logged:
             log.info(f"replay of {p['replay_file']} finished")
-            self._finished_logged = True
+            link.finished_logged = True
         with self._lock:
             now = time.monotonic()
             out = stream.feed(msg, now) if msg is not None else []
@@ -479,10 +541,16 @@ class SkinDriver(LifecycleNode):
         self._publish(out)
         if stream.last_error is not None:
             # (checked here: rclpy's own throttle inspects the call stack on every call)
-            if self._due("rejected"):
-                log.warning(f"rejected frame: {stream.last_error} (frames counted by kind)")
+            if self._due(f"rejected {link.name}"):
+                on = f" on bus {link.name}" if several else ""
+                log.warning(f"rejected frame{on}: {stream.last_error} (frames counted by kind)")
             stream.last_error = None
         if events:
+            if several:
+                events = [
+                    (lv, f"{link.name} {kind}", f"bus {link.name}: {text}")
+                    for lv, kind, text in events
+                ]
             self._log_events(events)
             self._diag_due = True
         if self._diag_due and time.monotonic() - self._diag_last >= EVENT_DIAG_MIN_S:
@@ -490,10 +558,9 @@ class SkinDriver(LifecycleNode):
             self._publish_diagnostics(window=False)
         # Bus-off with no data since: reopening re-initialises the controller of most adapters
         # (socketcan needs `ip link set can0 type can restart-ms 100` to restart by itself).
-        assert self._backoff is not None
-        if bus_off is not None and time.monotonic() - bus_off >= self._backoff.wait_s:
-            self._backoff.failed()  # the next reopen for a bus-off waits longer
-            self._drop_bus("controller bus-off with no data since")
+        if bus_off is not None and time.monotonic() - bus_off >= link.backoff.wait_s:
+            link.backoff.failed()  # the next reopen for a bus-off waits longer
+            self._drop_bus(link, "controller bus-off with no data since")
 
     def _due(self, kind: str) -> bool:
         """True at most once per WARN_THROTTLE_S per kind (for the receive thread's logs)."""
@@ -521,51 +588,50 @@ class SkinDriver(LifecycleNode):
             else:
                 log.info(text)
 
-    def _drop_bus(self, why: str) -> None:
-        """Close the bus and schedule a reopen after the backoff wait."""
-        assert self._backoff is not None
-        bus, self._bus = self._bus, None
-        wait = self._backoff.wait_s
-        self._next_attempt = time.monotonic() + wait
-        self._bus_problem = why
-        self.get_logger().warning(f"{why}: closing the bus, reopening in {wait:.2f} s")
+    def _drop_bus(self, link: _Link, why: str) -> None:
+        """Close ``link``'s bus and schedule a reopen after the backoff wait."""
+        bus, link.bus = link.bus, None
+        wait = link.backoff.wait_s
+        link.next_attempt = time.monotonic() + wait
+        link.problem = why
+        self.get_logger().warning(
+            f"{why}: closing the bus {self._bus_name(link)}, reopening in {wait:.2f} s"
+        )
         if bus is not None:
             error = close_bus(bus)
-            if error and self._due("close"):
+            if error and self._due(f"close {link.name}"):
                 self.get_logger().warning(f"closing the failed bus: {error}")
         self._publish_diagnostics(window=False)
 
-    def _reopen(self) -> None:
+    def _reopen(self, link: _Link) -> None:
         """Wait for the next attempt, then try to reopen the bus (backoff on failure)."""
-        assert self._backoff is not None and self._policy is not None
-        delay = self._next_attempt - time.monotonic()
+        delay = link.next_attempt - time.monotonic()
         if delay > 0:
             self._stop.wait(min(delay, 0.1))
             return
         with self._lock:
-            self._policy.reconnect_attempts += 1
-        bus = self._open_bus()
+            link.policy.reconnect_attempts += 1
+        bus = self._open_bus(link)
         if bus is None:
-            self._backoff.failed()
-            self._next_attempt = time.monotonic() + self._backoff.wait_s
+            link.backoff.failed()
+            link.next_attempt = time.monotonic() + link.backoff.wait_s
             return
-        self._bus = bus
-        first = not self._bus_opened
-        self._bus_opened, self._bus_problem = True, ""
+        link.bus = bus
+        first = not link.opened
+        link.opened, link.problem = True, ""
         with self._lock:
-            self._policy.reconnects += 1
-            if self._stream is not None:
-                self._stream.assembler.reset()  # half periods from before the gap
-                controller = self._stream.controller
-                if controller.bus_off_since is not None:  # still bus-off: wait from now
-                    controller.bus_off_since = time.monotonic()
-                else:
-                    self._backoff.reset()
+            link.policy.reconnects += 1
+            link.stream.assembler.reset()  # half periods from before the gap
+            controller = link.stream.controller
+            if controller.bus_off_since is not None:  # still bus-off: wait from now
+                controller.bus_off_since = time.monotonic()
+            else:
+                link.backoff.reset()
         self.get_logger().info(
-            f"{'opened' if first else 'reconnected to'} CAN bus {self._bus_name()}"
+            f"{'opened' if first else 'reconnected to'} CAN bus {self._bus_name(link)}"
         )
-        if first and self._params["send_config"] and not self._config_sent:
-            self._send_config()
+        if first and self._params["send_config"] and not link.config_sent:
+            self._send_config(link)
         self._publish_diagnostics(window=False)
 
     def _publish(self, frames: list[PatchFrame]) -> None:
@@ -573,6 +639,10 @@ class SkinDriver(LifecycleNode):
         TaxelArray while something subscribes to its topic."""
         if not self.context.ok():
             return
+        with self._batch_lock:  # (each bus's receive thread publishes)
+            self._publish_frames(frames)
+
+    def _publish_frames(self, frames: list[PatchFrame]) -> None:
         now = time.monotonic()
         if now - self._subscribed_at > SUBSCRIBERS_RECOUNT_S:
             # (an rmw query per topic: counted a few times a second, not per frame)
@@ -604,7 +674,7 @@ class SkinDriver(LifecycleNode):
             stamps = [self.get_clock().now().nanoseconds] * len(frames)
         data = write_taxel_batch(
             time.time_ns(),
-            self._params["bus"],
+            self._batch_bus,
             [f.patch for f in frames],
             [f.frame_id for f in frames],
             stamps,
@@ -648,11 +718,16 @@ class SkinDriver(LifecycleNode):
 
     # -- services and diagnostics ---------------------------------------------------------
     def _on_tare(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        if self._stream is None:
+        if not self._links:
             response.success, response.message = False, "not configured"
             return response
+        done: list[str] = []
+        missing: list[str] = []
         with self._lock:
-            done, missing = self._stream.tare()
+            for link in self._links:
+                d, m = link.stream.tare()
+                done += d
+                missing += m
         response.success = not missing
         response.message = f"tared patches {done}" + (
             f"; no reading yet from {missing}" if missing else ""
@@ -665,62 +740,75 @@ class SkinDriver(LifecycleNode):
         False, which leaves the rate windows alone). Safe from any thread."""
         with self._diag_lock:
             pub = self._diag_pub
-            if self._stream is None or pub is None or self._policy is None:
+            if not self._links or pub is None or not self.context.ok():
                 return
-            if not self.context.ok():
-                return
-            with self._lock:
-                statuses = self._stream.diagnostics(time.monotonic(), window=window)
-                bus_values = self._policy.values(window=window)
-                controller = self._stream.controller.values()
-                state = self._stream.controller.state
-            name = f"{self.get_name()}: CAN bus"
-            bus_open = self._bus is not None
-            finished = bus_open and getattr(self._bus, "finished", False)
-            level = cm.OK if bus_open else cm.ERROR
-            if finished:
-                message = "replay finished"
-            elif bus_open:
-                message = "open"
-            else:
-                wait = max(0.0, self._next_attempt - time.monotonic())
-                tries = bus_values["reconnect_attempts"]
-                message = f"closed, reopening in {wait:.1f} s ({tries} attempts so far)"
-                if self._bus_problem:
-                    message += f": {self._bus_problem}"
-            quiet = time.monotonic() - self._last_frame if self._last_frame >= 0 else -1.0
-            timeout = self._params.get("module_timeout_ms", 500.0) * 1e-3
-            if bus_open and not finished and quiet > timeout:
-                level, message = max(level, cm.WARN), message + f", no frames for {quiet:.1f} s"
-            if state == BUS_OFF:
-                level, message = cm.ERROR, message + ", controller bus-off"
-            elif state in (ERROR_PASSIVE, WARNING):
-                level, message = max(level, cm.WARN), message + f", controller {state}"
-            values = {
-                "bus": self._bus_name(),
-                "state": self._state_label(),
-                **bus_values,
-                **controller,
-                "next_reconnect_wait_s": self._backoff.wait_s if self._backoff else 0.0,
-                "bus_problem": self.bus_problem(),
-                "bus_ever_open": self._bus_opened,
-                "seconds_since_last_frame": quiet,
-            }
-            if bus_values["bus_errors_in_window"]:
-                level = max(level, cm.WARN)
-                message += f", {bus_values['bus_errors_in_window']} bus errors"
             prefix = self.get_name()
+            several = len(self._links) > 1
             out = DiagnosticArray()
             out.header.stamp = self.get_clock().now().to_msg()
-            out.status = [cm.diagnostic_status(name, level, message, values, self._bus_name())]
-            out.status += [
-                cm.diagnostic_status(
-                    f"{prefix}: {s.name}", s.level, s.message, s.values, s.hardware_id
-                )
-                for s in statuses
-            ]
+            for link in self._links:
+                status, statuses = self._link_diagnostics(link, window)
+                if several:
+                    status.name += f" {link.name}"
+                out.status.append(status)
+                out.status += [
+                    cm.diagnostic_status(
+                        f"{prefix}: {s.name}"
+                        + (f" {link.name}" if several and s.name == "frames" else ""),
+                        s.level,
+                        s.message,
+                        s.values,
+                        s.hardware_id,
+                    )
+                    for s in statuses
+                ]
             pub.publish(out)
             self._diag_last = time.monotonic()
+
+    def _link_diagnostics(self, link: _Link, window: bool) -> tuple[Any, list[Any]]:
+        """``link``'s bus status and its stream's (frames, patches, modules)."""
+        with self._lock:
+            statuses = link.stream.diagnostics(time.monotonic(), window=window)
+            bus_values = link.policy.values(window=window)
+            controller = link.stream.controller.values()
+            state = link.stream.controller.state
+        name = f"{self.get_name()}: CAN bus"
+        bus_open = link.bus is not None
+        finished = bus_open and getattr(link.bus, "finished", False)
+        level = cm.OK if bus_open else cm.ERROR
+        if finished:
+            message = "replay finished"
+        elif bus_open:
+            message = "open"
+        else:
+            wait = max(0.0, link.next_attempt - time.monotonic())
+            tries = bus_values["reconnect_attempts"]
+            message = f"closed, reopening in {wait:.1f} s ({tries} attempts so far)"
+            if link.problem:
+                message += f": {link.problem}"
+        quiet = time.monotonic() - link.last_frame if link.last_frame >= 0 else -1.0
+        timeout = self._params.get("module_timeout_ms", 500.0) * 1e-3
+        if bus_open and not finished and quiet > timeout:
+            level, message = max(level, cm.WARN), message + f", no frames for {quiet:.1f} s"
+        if state == BUS_OFF:
+            level, message = cm.ERROR, message + ", controller bus-off"
+        elif state in (ERROR_PASSIVE, WARNING):
+            level, message = max(level, cm.WARN), message + f", controller {state}"
+        values = {
+            "bus": self._bus_name(link),
+            "state": self._state_label(),
+            **bus_values,
+            **controller,
+            "next_reconnect_wait_s": link.backoff.wait_s,
+            "bus_problem": "" if bus_open else link.problem,
+            "bus_ever_open": link.opened,
+            "seconds_since_last_frame": quiet,
+        }
+        if bus_values["bus_errors_in_window"]:
+            level = max(level, cm.WARN)
+            message += f", {bus_values['bus_errors_in_window']} bus errors"
+        hardware = self._bus_name(link)
+        return cm.diagnostic_status(name, level, message, values, hardware), statuses
 
     def state_label(self) -> str:
         """The lifecycle state ("unconfigured", "inactive", "active", ...)."""
