@@ -105,49 +105,84 @@ def simulate(layout: Path, scene: str, seconds: float) -> tuple[list, list[list]
     return fixed, per_period
 
 
-def source_process(layout: Path, scene: str, rate_hz: float, group: int) -> None:
-    """Publish the scene's batches (``group`` patches each, the groups spread over the
-    period) at ``rate_hz`` periods a second until SIGINT; READY when made, sending on GO."""
+def batch_plan(
+    layout: Path, group: str, window_ms: float = 2.0
+) -> list[tuple[float, list[int], list[float]]]:
+    """When each batch of a period goes out and what it holds: (its time in the period, as a
+    fraction of it; the patches' indices; each reading's age when it goes out, as a fraction).
+
+    ``group``: a number k (k patches a batch, spread evenly over the period); ``bus`` (one
+    batch a bus, the buses spread evenly: one driver a bus); ``one-driver`` (the buses at
+    random phases, seeded, as free-running boards put them, and one driver reading every bus:
+    the readings completed within ``window_ms`` of a batch's first go out in it, when the
+    window ends, as its Batcher sends them); ``period`` (every patch in one batch: buses in
+    step)."""
+    from tactile_contact.model.layout import load_layout
+
+    patches = load_layout(layout).patches
+    buses: dict[str, list[int]] = {}
+    for k, p in enumerate(patches):
+        buses.setdefault(p.bus, []).append(k)
+    if group == "period":
+        return [(0.0, list(range(len(patches))), [0.0] * len(patches))]
+    if group == "one-driver":
+        rng = np.random.default_rng(7)
+        phases = sorted(zip(rng.uniform(0.0, 1.0, len(buses)), buses.values(), strict=True))
+        window = window_ms / PERIOD_MS
+        plan: list[tuple[float, list[int], list[float]]] = []
+        start = -1.0
+        for phase, members in phases:
+            if plan and phase - start < window:
+                plan[-1][1].extend(members)
+                plan[-1][2].extend([start + window - phase] * len(members))
+            else:
+                start = phase
+                plan.append((min(phase + window, 0.999), list(members), [window] * len(members)))
+        return plan
+    if group == "bus":
+        groups = list(buses.values())
+    else:
+        k = int(group)
+        groups = [list(range(i, min(i + k, len(patches)))) for i in range(0, len(patches), k)]
+    return [(i / len(groups), g, [0.0] * len(g)) for i, g in enumerate(groups)]
+
+
+def source_process(layout: Path, scene: str, rate_hz: float, group: str) -> None:
+    """Publish the scene's batches (as :func:`batch_plan` arranges them) at ``rate_hz``
+    periods a second until SIGINT; READY when made, sending on GO."""
     import rclpy
     from rclpy.node import Node
 
-    from tactile_contact.model.layout import load_layout
     from tactile_contact.msg import TaxelBatch
     from tactile_contact.ros.cdr import write_taxel_batch
     from tactile_contact.ros.common import SENSOR_QOS
 
     fixed, per_period = readings(layout, scene, 4.0)
+    plan = batch_plan(layout, group)
     rclpy.init()
     node = Node("workers_source")
     pub = node.create_publisher(TaxelBatch, "taxel_batches", SENSOR_QOS)
-    if group:
-        groups = [list(range(k, min(k + group, len(fixed)))) for k in range(0, len(fixed), group)]
-    else:  # one batch a bus, as the drivers send them
-        buses: dict[str, list[int]] = {}
-        for k, p in enumerate(load_layout(layout).patches):
-            buses.setdefault(p.bus, []).append(k)
-        groups = list(buses.values())
     print("READY", flush=True)
     sys.stdin.readline()  # GO
-    step = 1.0 / rate_hz / len(groups)
+    period_s = 1.0 / rate_hz
     t0 = time.monotonic()
     j = 0
     try:
         while rclpy.ok():
-            delay = t0 + j * step - time.monotonic()
+            period, g = divmod(j, len(plan))
+            at, members, ages = plan[g]
+            delay = t0 + (period + at) * period_s - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-            period, g = divmod(j, len(groups))
             rows = per_period[period % len(per_period)]
             now = time.time_ns()
-            members = groups[g]
             pub.publish(
                 write_taxel_batch(
                     now,
                     "",
                     [fixed[k][0] for k in members],
                     [fixed[k][1] for k in members],
-                    [now] * len(members),
+                    [now - round(a * period_s * 1e9) for a in ages],
                     [fixed[k][2] for k in members],
                     [rows[k][0] for k in members],
                     [rows[k][1] for k in members],
@@ -184,7 +219,7 @@ def run_phase(
     consumers: str,
     workers: int,
     rate_hz: float,
-    group: int,
+    group: int | str,
     seconds: float,
     warmup: float = 5.0,
     profile_s: float = 0.0,
@@ -396,6 +431,14 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="3 s phases after 3 s of warm-up")
     ap.add_argument("--rate", type=float, default=200.0, help="saturation: periods a second")
     ap.add_argument("--group", type=int, default=3, help="patches per batch (24-patch skin)")
+    ap.add_argument(
+        "--robot-batches",
+        choices=("bus", "one-driver", "period"),
+        default="bus",
+        help="the whole robot's batches: one a bus, the buses spread evenly (a driver a bus); "
+        "as one driver of every bus sends them (drivers:=one: the buses at random phases, a "
+        "2 ms batch window); or every patch in one a period (buses in step)",
+    )
     ap.add_argument("--profile", type=float, default=0.0, help="py-spy a worker S s a phase")
     ap.add_argument("--out", type=Path, help="also write workers.md and workers.json here")
     ap.add_argument(
@@ -415,7 +458,7 @@ def main() -> int:
     args = ap.parse_args()
     if args.source_child:
         layout, scene, rate, group = args.source_child
-        source_process(Path(layout), scene, float(rate), int(group))
+        source_process(Path(layout), scene, float(rate), group)
         return 0
     if args.quick:
         args.seconds, args.warmup = 3.0, 3.0
@@ -485,10 +528,15 @@ def main() -> int:
         )
     if "robot" in args.phases:
         build_layout(ROBOT, ROBOT_BUNDLES, jobs=2)
-        say("-- the whole robot (34 patches, 3928 taxels, 7 buses), one batch a bus --")
-        phase("relay, robot", ROBOT, ROBOT_BUNDLES, "typical", "relay", 1, rate, 0, n)
+        rb = args.robot_batches
+        plan = batch_plan(ROBOT, rb)
+        say(
+            f"-- the whole robot (34 patches, 3928 taxels, 7 buses), batches: {rb} "
+            f"({len(plan)} a period, of {', '.join(str(len(m)) for _, m, _ in plan)} patches) --"
+        )
+        phase("relay, robot", ROBOT, ROBOT_BUNDLES, "typical", "relay", 1, rate, rb, n)
         if args.before:
-            a = (ROBOT, ROBOT_BUNDLES, "typical", "workers", 1, rate, 0, n)
+            a = (ROBOT, ROBOT_BUNDLES, "typical", "workers", 1, rate, rb, n)
             phase("(b) typical, 1 worker, before", *a, tree=args.before)
         for w in (1, 2):
             phase(
@@ -499,7 +547,7 @@ def main() -> int:
                 "workers",
                 w,
                 rate,
-                0,
+                rb,
                 n,
             )
     say(f"load average after: {os.getloadavg()[0]:.2f}")
