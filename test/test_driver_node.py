@@ -134,15 +134,20 @@ class Harness:
         pub = self.driver._pubs["hexagon"]
 
         def matched() -> bool:
-            # This listener's reader seen by the driver, and a writer of the driver by it: a
-            # count alone was met by a previous test's endpoints, and the first messages of
-            # the run were lost (67 of 70 TaxelArrays, the driver had published 70).
+            # This listener's reader seen by the driver, a writer of the driver by it, and the
+            # driver's own count of subscribers (taken every 0.2 s: it publishes a TaxelArray
+            # only while it counts one) saying so. Without the last, a count taken just before
+            # the match left the first periods unpublished: 67 TaxelArrays for 70 periods.
             readers = self.driver.get_subscriptions_info_by_topic("hexagon/taxels")
             writers = self.listener.get_publishers_info_by_topic("hexagon/taxels")
             return (
                 pub.get_subscription_count() > 0
                 and any(r.node_name == self.listener.get_name() for r in readers)
                 and any(w.node_name == self.driver.get_name() for w in writers)
+                and (
+                    self.driver.state_label() != "active"  # (it counts them once active)
+                    or self.driver._subscribed.get("hexagon", False)
+                )
             )
 
         assert self.spin_until(matched, 10.0), "no match"
