@@ -85,27 +85,34 @@ def _simulator(patch: Any, seed: int) -> SkinSimulator:
     )
 
 
-@pytest.mark.ros
-def test_every_reading_is_in_one_batch_and_taxel_arrays_only_for_subscribers(
-    ros_context: object,
-) -> None:
-    from rclpy.executors import SingleThreadedExecutor
+def _two_bus_layout(tmp_path: Path) -> Path:
+    """robot_skin.yaml with the forearm on can0 and the palm on can1, its first module at
+    board 0: the forearm's address on the other bus (ids repeat from bus to bus)."""
+    import yaml
+
+    doc = yaml.safe_load(LAYOUT.read_text())
+    doc["patches"][0]["bus"] = "can0"
+    doc["patches"][1]["bus"] = "can1"
+    doc["patches"][1]["modules"][0]["board"] = 0
+    path = tmp_path / "two_buses.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def _driver_and_batches(ros_context: object, params: dict, name: str) -> tuple[Any, Any, list]:
+    """A SkinDriver with ``params``, and a node ``name`` collecting its TaxelBatches (read)."""
     from rclpy.node import Node
     from rclpy.parameter import Parameter
 
-    from tactile_contact.msg import TaxelArray, TaxelBatch
+    from tactile_contact.msg import TaxelBatch
     from tactile_contact.ros.cdr import read_taxel_batch
     from tactile_contact.ros.common import SENSOR_QOS
     from tactile_contact.ros.skin_driver import SkinDriver
-    from tactile_contact.sim.simulator import Indentation
 
-    channel = "driver_batches"
-    params = {"interface": "virtual", "channel": channel, "layout": str(LAYOUT)}
-    params |= {"period_ms": 20, "calibration_samples": 2, "batch_window_ms": 5.0}
     node = SkinDriver(
         context=ros_context, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]
     )
-    listener = Node("batch_listener", context=ros_context)
+    listener = Node(name, context=ros_context)
     batches: list[Any] = []
     listener.create_subscription(
         TaxelBatch,
@@ -114,6 +121,23 @@ def test_every_reading_is_in_one_batch_and_taxel_arrays_only_for_subscribers(
         SENSOR_QOS,
         raw=True,
     )
+    return node, listener, batches
+
+
+@pytest.mark.ros
+def test_every_reading_is_in_one_batch_and_taxel_arrays_only_for_subscribers(
+    ros_context: object,
+) -> None:
+    from rclpy.executors import SingleThreadedExecutor
+
+    from tactile_contact.msg import TaxelArray
+    from tactile_contact.ros.common import SENSOR_QOS
+    from tactile_contact.sim.simulator import Indentation
+
+    channel = "driver_batches"
+    params = {"interface": "virtual", "channel": channel, "layout": str(LAYOUT)}
+    params |= {"period_ms": 20, "calibration_samples": 2, "batch_window_ms": 5.0}
+    node, listener, batches = _driver_and_batches(ros_context, params, "batch_listener")
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
     executor.add_node(listener)
@@ -198,17 +222,11 @@ def test_every_reading_is_in_one_batch_and_taxel_arrays_only_for_subscribers(
 def test_a_layout_on_several_buses_needs_the_bus_named(ros_context: object, tmp_path: Path) -> None:
     """One driver serves one bus: a layout with several is refused at configure unless its
     bus is named, and then it serves that bus's patches only."""
-    import yaml
     from rclpy.parameter import Parameter
 
     from tactile_contact.ros.skin_driver import SkinDriver
 
-    doc = yaml.safe_load(LAYOUT.read_text())
-    doc["patches"][0]["bus"] = "can0"
-    doc["patches"][1]["bus"] = "can1"
-    doc["patches"][1]["modules"][0]["board"] = 0  # the same address as on can0: allowed
-    path = tmp_path / "two_buses.yaml"
-    path.write_text(yaml.safe_dump(doc))
+    path = _two_bus_layout(tmp_path)
     assert load_layout(path).buses() == ("can0", "can1")
 
     def driver(**extra: object) -> Any:
@@ -231,42 +249,20 @@ def test_one_driver_serves_several_buses_in_one_stream(ros_context: object, tmp_
     """``buses``: one driver reads two buses (the same board address on both, at different
     phases of the period), each reading lands in one batch of the one taxel_batches stream,
     /diagnostics names each bus, and a bus that fails is reopened while the other goes on."""
-    import yaml
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-    from rclpy.parameter import Parameter
 
-    from tactile_contact.msg import TaxelBatch
-    from tactile_contact.ros.cdr import read_taxel_batch
-    from tactile_contact.ros.common import DIAGNOSTICS_QOS, SENSOR_QOS
-    from tactile_contact.ros.skin_driver import SkinDriver
+    from tactile_contact.ros.common import DIAGNOSTICS_QOS
     from tactile_contact.sim.simulator import Indentation
 
-    doc = yaml.safe_load(LAYOUT.read_text())
-    doc["patches"][0]["bus"] = "can0"
-    doc["patches"][1]["bus"] = "can1"
-    doc["patches"][1]["modules"][0]["board"] = 0  # the same address as on can0: allowed
-    path = tmp_path / "two_buses.yaml"
-    path.write_text(yaml.safe_dump(doc))
+    path = _two_bus_layout(tmp_path)
     layout = load_layout(path)
     channels = {"can0": "several_a", "can1": "several_b"}
     params = {"interface": "virtual", "layout": str(path), "buses": list(channels)}
     params |= {"channels": list(channels.values()), "period_ms": 20, "calibration_samples": 2}
     params |= {"batch_window_ms": 2.0, "reconnect_interval_s": 0.2, "diagnostics_period_s": 0.2}
-    node = SkinDriver(
-        context=ros_context, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]
-    )
+    node, listener, batches = _driver_and_batches(ros_context, params, "several_listener")
     assert [link.name for link in node._links] == ["can0", "can1"]
-    listener = Node("several_listener", context=ros_context)
-    batches: list[Any] = []
-    listener.create_subscription(
-        TaxelBatch,
-        "taxel_batches",
-        lambda data: batches.append(read_taxel_batch(data)),
-        SENSOR_QOS,
-        raw=True,
-    )
     arrays: list[Any] = []
     listener.create_subscription(DiagnosticArray, "/diagnostics", arrays.append, DIAGNOSTICS_QOS)
 
