@@ -32,7 +32,7 @@ from __future__ import annotations
 import array
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -110,7 +110,6 @@ class _Link:
     last_frame: float = -1.0  # monotonic time of the last frame received (-1: none yet)
     finished_logged: bool = False
     thread: threading.Thread | None = None
-    patches: list[str] = field(default_factory=list)
 
 
 class SkinDriver(LifecycleNode):
@@ -259,8 +258,7 @@ class SkinDriver(LifecycleNode):
             )
             policy = BusErrorPolicy(p["reconnect_after_errors"])
             backoff = Backoff(p["reconnect_interval_s"], p["reconnect_max_interval_s"])
-            link = _Link(name, channel, stream, policy, backoff, patches=[pl.name for pl in mine])
-            self._links.append(link)
+            self._links.append(_Link(name, channel, stream, policy, backoff))
         self._batch_bus = p["bus"] if len(self._links) == 1 else ",".join(names)
         for link in self._links:
             try:
