@@ -129,15 +129,18 @@ def batch_plan(
         rng = np.random.default_rng(7)
         phases = sorted(zip(rng.uniform(0.0, 1.0, len(buses)), buses.values(), strict=True))
         window = window_ms / PERIOD_MS
-        plan: list[tuple[float, list[int], list[float]]] = []
-        start = -1.0
+        clusters: list[list[tuple[float, list[int]]]] = []  # the buses of each batch
         for phase, members in phases:
-            if plan and phase - start < window:
-                plan[-1][1].extend(members)
-                plan[-1][2].extend([start + window - phase] * len(members))
+            if clusters and phase - clusters[-1][0][0] < window:
+                clusters[-1].append((phase, members))
             else:
-                start = phase
-                plan.append((min(phase + window, 0.999), list(members), [window] * len(members)))
+                clusters.append([(phase, members)])
+        plan = []
+        for cluster in clusters:
+            at = min(cluster[0][0] + window, 0.999)  # its window ends (within the period)
+            plan.append(
+                (at, [k for _, m in cluster for k in m], [at - ph for ph, m in cluster for _ in m])
+            )
         return plan
     if group == "bus":
         groups = list(buses.values())
