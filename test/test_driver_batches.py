@@ -53,6 +53,34 @@ def test_a_batch_goes_out_when_every_patch_has_a_reading_or_its_window_ends() ->
     assert [[f.patch for f in batch] for batch in now.add(_frame("b"), now=1.0)] == [["b"]]
 
 
+def test_with_buses_a_complete_bus_goes_out_unless_another_is_due_within_the_window() -> None:
+    """One driver of three buses, one patch each, 20 ms periods: can0 and can1 complete 1 ms
+    apart, can2 10 ms later. Until a bus's period is known each goes out as it completes; then
+    can0 waits for can1 (due within the window) and not for can2; a bus that misses its
+    period holds the batch until it is due, and no longer after that."""
+    from tactile_contact.canbus.batcher import Batcher
+
+    b = Batcher(["a", "b", "c"], 0.002, {"can0": ["a"], "can1": ["b"], "can2": ["c"]})
+
+    def sent(patch: str, ms: float) -> list[list[str]]:
+        return [[f.patch for f in batch] for batch in b.add(_frame(patch), now=ms * 1e-3)]
+
+    for k in (0, 1):  # the periods learnt: each bus alone, at once
+        assert sent("a", 20 * k) == [["a"]]
+        assert sent("b", 20 * k + 1) == [["b"]]
+        assert sent("c", 20 * k + 10) == [["c"]]
+    assert b.expected("can1") == pytest.approx(0.041)
+    assert sent("a", 40) == []  # can1 is due at 41, within the window
+    assert sent("b", 41) == [["a", "b"]]  # both complete; can2 not before 50
+    assert sent("c", 50) == [["c"]]
+    assert sent("a", 60) == [] and b.due == pytest.approx(0.062)  # can1 late: held till due
+    assert [f.patch for f in b.take()] == ["a"]
+    assert sent("c", 70) == [["c"]]
+    assert sent("a", 80) == [["a"]]  # can1 overdue by more than the window: not waited for
+    alone = Batcher(["a", "b"], 0.002)  # no buses named: the window, as before
+    assert alone.add(_frame("a"), now=1.0) == [] and alone.due == pytest.approx(1.002)
+
+
 class _Bump:
     """Compression [m] = 200 µm · exp(−r²/2σ²), σ = 5 mm, around the patch's first taxel."""
 

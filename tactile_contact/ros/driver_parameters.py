@@ -24,7 +24,8 @@ PARAMETERS: tuple[tuple[str, Any, str, dict[str, Any]], ...] = (
     ("channels", cm.STRING_ARRAY_EMPTY, "python-can channel of each of buses (same order); "
      "empty = channel for one bus, else each bus's name (socketcan: can0, can1, ...)", {}),
     ("batch_window_ms", 2.0, "taxel_batches: the readings completed within this long of the "
-     "first one not yet published go out in one TaxelBatch (sooner once every patch has one); "
+     "first one not yet published go out in one TaxelBatch (sooner once every patch has one, "
+     "or with several buses once its buses are complete and no other is due within it); "
      "0 = each receive's at once", {"unit": "ms", "float_range": (0.0, 100.0)}),
     ("interface", "socketcan", "python-can interface (socketcan, virtual, ...)", {}),
     ("channel", "can0", "python-can channel", {}),

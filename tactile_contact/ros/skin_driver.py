@@ -281,7 +281,11 @@ class SkinDriver(LifecycleNode):
                 TaxelArray, f"{pl.name}/taxels", cm.SENSOR_QOS
             )
         self._batch_pub = self.create_lifecycle_publisher(TaxelBatch, BATCHES_TOPIC, cm.SENSOR_QOS)
-        self._batcher = Batcher([pl.name for pl in patches], p["batch_window_ms"] * 1e-3)
+        self._batcher = Batcher(
+            [pl.name for pl in patches],
+            p["batch_window_ms"] * 1e-3,
+            {link.name: [pl.name for pl in patches if pl.bus == link.name] for link in self._links},
+        )
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", cm.DIAGNOSTICS_QOS)
         self._diag_timer = self.create_timer(p["diagnostics_period_s"], self._publish_diagnostics)
         self._tare_srv = self.create_service(Trigger, "~/tare", self._on_tare)
