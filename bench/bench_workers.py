@@ -51,6 +51,8 @@ from benchkit import ROOT
 from benchkit.skins import PERIOD_MS, multi_patch_layout
 from benchkit.timing import profile
 
+from tactile_contact.canbus.stream import PatchFrame
+
 OUT = ROOT / "out" / "bench_workers"
 ROBOT = ROOT / "config" / "icub_robot.yaml"
 ROBOT_BUNDLES = ROOT / "out" / "robot" / "bundles"
@@ -114,9 +116,10 @@ def batch_plan(
     ``group``: a number k (k patches a batch, spread evenly over the period); ``bus`` (one
     batch a bus, the buses spread evenly: one driver a bus); ``one-driver`` (the buses at
     random phases, seeded, as free-running boards put them, and one driver reading every bus:
-    the readings completed within ``window_ms`` of a batch's first go out in it, when the
-    window ends, as its Batcher sends them); ``period`` (every patch in one batch: buses in
-    step)."""
+    its Batcher, :func:`driver_batches`, sends a bus that completes at once unless another is
+    due within ``window_ms``); ``one-driver-window`` (the same buses, a Batcher that does not
+    know them: the readings completed within ``window_ms`` of a batch's first go out in it
+    when the window ends); ``period`` (every patch in one batch: buses in step)."""
     from tactile_contact.model.layout import load_layout
 
     patches = load_layout(layout).patches
@@ -125,29 +128,45 @@ def batch_plan(
         buses.setdefault(p.bus, []).append(k)
     if group == "period":
         return [(0.0, list(range(len(patches))), [0.0] * len(patches))]
-    if group == "one-driver":
+    if group in ("one-driver", "one-driver-window"):
         rng = np.random.default_rng(7)
         phases = sorted(zip(rng.uniform(0.0, 1.0, len(buses)), buses.values(), strict=True))
-        window = window_ms / PERIOD_MS
-        clusters: list[list[tuple[float, list[int]]]] = []  # the buses of each batch
-        for phase, members in phases:
-            if clusters and phase - clusters[-1][0][0] < window:
-                clusters[-1].append((phase, members))
-            else:
-                clusters.append([(phase, members)])
-        plan = []
-        for cluster in clusters:
-            at = min(cluster[0][0] + window, 0.999)  # its window ends (within the period)
-            plan.append(
-                (at, [k for _, m in cluster for k in m], [at - ph for ph, m in cluster for _ in m])
-            )
-        return plan
+        return driver_batches(phases, window_ms / PERIOD_MS, group == "one-driver")
     if group == "bus":
         groups = list(buses.values())
     else:
         k = int(group)
         groups = [list(range(i, min(i + k, len(patches)))) for i in range(0, len(patches), k)]
     return [(i / len(groups), g, [0.0] * len(g)) for i, g in enumerate(groups)]
+
+
+def driver_batches(
+    phases: list[tuple[float, list[int]]], window: float, by_bus: bool
+) -> list[tuple[float, list[int], list[float]]]:
+    """What the driver's Batcher sends in a period (:func:`batch_plan`'s terms, times as
+    fractions of the period) when each bus's patches complete at its phase: a few periods
+    are run through it (its receive timeout takes a batch at its due time) and the fourth
+    period's batches kept. ``by_bus``: the Batcher knows each bus's patches (it sends a bus
+    that completes alone at once); else it waits the window out."""
+    from tactile_contact.canbus.batcher import Batcher
+
+    names = [str(k) for _, m in phases for k in m]
+    groups = {str(i): [str(k) for k in m] for i, (_, m) in enumerate(phases)} if by_bus else None
+    b = Batcher(names, window, groups)
+    sent: list[tuple[float, list]] = []
+    for period in range(5):
+        for phase, members in phases:
+            t = period + phase
+            if b.pending and t >= b.due:
+                sent.append((b.due, b.take()))
+            for k in members:
+                frame = PatchFrame(str(k), "", t, [], np.zeros(0, np.float32), b"", b"")
+                sent.extend((t, batch) for batch in b.add(frame, t))
+    return [
+        (at - 3, [int(f.patch) for f in batch], [at - f.stamp for f in batch])
+        for at, batch in sent
+        if 3 <= at < 4
+    ]
 
 
 def source_process(layout: Path, scene: str, rate_hz: float, group: str) -> None:
@@ -436,11 +455,12 @@ def main() -> int:
     ap.add_argument("--group", type=int, default=3, help="patches per batch (24-patch skin)")
     ap.add_argument(
         "--robot-batches",
-        choices=("bus", "one-driver", "period"),
+        choices=("bus", "one-driver", "one-driver-window", "period"),
         default="bus",
         help="the whole robot's batches: one a bus, the buses spread evenly (a driver a bus); "
         "as one driver of every bus sends them (drivers:=one: the buses at random phases, a "
-        "2 ms batch window); or every patch in one a period (buses in step)",
+        "2 ms batch window; -window: a Batcher that does not know the buses, the stop-42 "
+        "one); or every patch in one a period (buses in step)",
     )
     ap.add_argument("--profile", type=float, default=0.0, help="py-spy a worker S s a phase")
     ap.add_argument("--out", type=Path, help="also write workers.md and workers.json here")
