@@ -118,7 +118,7 @@ test: setup ros-launch
 bundles: setup
 	$(PY) -m tactile_contact.offline.build config/hexagon_patch.yaml -o bundles
 
-# The whole robot's 34 bundles (config/icub_robot.yaml; ≈ 30 min of CPU, an up-to-date bundle is
+# The whole robot's 34 bundles (config/icub_robot.yaml; ≈ 90 s of CPU, an up-to-date bundle is
 # skipped): what bench/bench_workers.py and the README's whole-robot launch lines use.
 robot-bundles: setup
 	$(PY) -m tactile_contact.offline.build config/icub_robot.yaml -o out/robot/bundles --jobs 2

@@ -23,7 +23,7 @@ window come on top), each consumer's memory; ``--profile S``: py-spy on the firs
 - ``saturation``: the sliding scene offered at ``--rate`` (above what one core solves), one
   worker then two: patch-frames summarised per second, and their ratio;
 - ``robot``: the whole robot (config/icub_robot.yaml, bundles in out/robot/bundles, built at
-  the start when missing: ≈ 30 min of CPU), scene (b) (typical), one batch a bus: the relay,
+  the start when missing: ≈ 90 s of CPU), scene (b) (typical), one batch a bus: the relay,
   one worker, two workers (latency, CPU, memory per worker).
 
 A markdown table of every phase closes the output.
