@@ -96,6 +96,46 @@ def test_boussinesq_tables_are_the_dense_point_force_sum(point_tables, family):
     assert 0.94 * love < got[0] < 0.98 * love
 
 
+@settings(max_examples=8, deadline=None)
+@given(
+    st.sampled_from([(0, "love"), (1, "love"), (0, "boussinesq")]),
+    st.floats(0.3e-3, 5e-3),
+    st.lists(st.floats(0.2e-3, 4e-3), min_size=1, max_size=2),
+    st.floats(1e-3, 6e-3),
+)
+def test_responses_are_the_whole_grid_product(kind, radius, feet, reach):
+    """radial_responses convolves the contact's cells with the kernel only over the strip of
+    cells its samples read: the same numbers as the operator's FFT product over the whole
+    grid (its own tests: against the dense matrices), sampled the same way."""
+    import math
+
+    import scipy.ndimage
+
+    from tactile_contact.inverse.round_contact import radial_responses
+    from tactile_contact.model.elastic import regular_grid_operator
+    from tactile_contact.model.grids import disc_quadrature
+
+    fi, model = kind
+    cell, step = 1e-4, 2.5e-4
+    got = radial_responses(H, E, NU, feet, [(fi, radius)], reach=reach, step=step, model=model)
+    dist = np.arange(round(reach / step) + 1) * step
+    n = 2 * math.ceil((reach + max(feet) + 2 * cell) / cell) + 1
+    c = (np.arange(n) - n // 2) * cell
+    centers = np.stack(np.meshgrid(c, c, indexing="ij"), axis=-1).reshape(-1, 2)
+    p = _indenter(FAMILIES[fi], radius).pressure_on_cells(
+        centers, np.full(2, cell / 2), 1.0, (0.0, 0.0), E, NU
+    )
+    op = regular_grid_operator(n, n, cell, cell, H, E, NU, model)
+    field = op.matvec(p * (cell * cell if model == "boussinesq" else 1.0)).reshape(n, n)
+    for m, r in enumerate(feet):
+        q, w = disc_quadrature(r, 8, 24)
+        px = (dist[:, None] + q[None, :, 0]) / cell + n // 2
+        py = np.broadcast_to(q[None, :, 1] / cell + n // 2, px.shape)
+        vals = scipy.ndimage.map_coordinates(field, [px.ravel(), py.ravel()], order=1)
+        ref = vals.reshape(px.shape) @ w
+        np.testing.assert_allclose(got[0, m], ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+
+
 def test_tables_show_the_bulge_ring_and_decay(tables):
     t = tables.table
     assert np.isfinite(t).all()
