@@ -45,7 +45,6 @@ class Batcher:
         self._group_of = {p: g for g, ps in self.groups.items() for p in ps}
         self._completed_at: dict[str, float] = {}  # monotonic time a bus last completed [s]
         self._period: dict[str, float] = {}  # its period estimate [s]
-        self._complete: set[str] = set()  # buses complete in the open batch
 
     def add(self, frame: PatchFrame, now: float) -> list[list[PatchFrame]]:
         """Add a reading; the batches that are due because of it (0, 1 or 2)."""
@@ -56,9 +55,15 @@ class Batcher:
             self.due = now + self.window_s
         self.pending[frame.patch] = frame
         g = self._group_of.get(frame.patch)
-        if g is not None and self.groups[g] <= self.pending.keys():
+        # (a batch can become ready only when a bus in it completes: this reading's)
+        completed = g is not None and self.groups[g] <= self.pending.keys()
+        if completed:
             self._bus_completed(g, now)
-        if len(self.pending) == len(self.names) or self.window_s <= 0.0 or self._ready(now):
+        if (
+            len(self.pending) == len(self.names)
+            or self.window_s <= 0.0
+            or (completed and self._ready(now))
+        ):
             out.append(self.take())
         return out
 
@@ -66,7 +71,6 @@ class Batcher:
         """The open batch (emptied)."""
         frames = list(self.pending.values())
         self.pending.clear()
-        self._complete.clear()
         self.due = math.inf
         return frames
 
@@ -77,7 +81,6 @@ class Batcher:
         return None if period is None else self._completed_at[group] + period
 
     def _bus_completed(self, g: str, now: float) -> None:
-        self._complete.add(g)
         last = self._completed_at.get(g)
         self._completed_at[g] = now
         if last is None or now <= last:
@@ -94,14 +97,10 @@ class Batcher:
     def _ready(self, now: float) -> bool:
         """Every bus the open batch holds is complete, and none other is expected before
         the batch is due (nor overdue by less than the window: it may be on its way)."""
-        if not self.groups:
-            return False
         held = {self._group_of.get(p) for p in self.pending}  # (None: a patch of no bus)
-        if len(self._complete) < len(held):
+        if None in held or any(not self.groups[g] <= self.pending.keys() for g in held):
             return False
-        for g in self.groups:
-            if g in self._complete:
-                continue
+        for g in self.groups.keys() - held:
             t = self.expected(g)
             if t is not None and now - self.window_s <= t <= self.due:
                 return False
