@@ -29,8 +29,8 @@ import scipy.signal
 from numpy.typing import ArrayLike, NDArray
 
 from tactile_contact.inverse.reductions import norm
-from tactile_contact.model.elastic import regular_grid_operator
 from tactile_contact.model.elastic.axisymmetric import round_responses
+from tactile_contact.model.elastic.toeplitz import grid_kernel
 from tactile_contact.model.grids import disc_quadrature, distance_to_points
 from tactile_contact.model.indenters import FlatPunch, HertzSphere
 
@@ -174,11 +174,12 @@ def round_tables(
     Point taxels (``taxel_radius`` 0, model ``"love"``) read the continuum
     (:mod:`tactile_contact.model.elastic.axisymmetric`). Otherwise each profile's exact cell
     averages on a regular ``cell`` grid are convolved (FFT) with the effective-deflection
-    kernel of ``model`` (:func:`regular_grid_operator`'s: ``"love"``, uniform pressure per
-    cell, or ``"boussinesq"``, a point force p·A per cell with the Muscari self term of
-    ``psi``), so that the fit and the bundle's forward matrix share one elastic model; the
-    deflection field is then averaged over the electrode disc (8 × 24 points, bilinear) at
-    each distance. thickness h [m], young E [Pa], poisson ν, taxel_radius [m].
+    kernel of ``model`` (:func:`grid_kernel`, as :func:`regular_grid_operator`'s: ``"love"``,
+    uniform pressure per cell, or ``"boussinesq"``, a point force p·A per cell with the
+    Muscari self term of ``psi``), so that the fit and the bundle's forward matrix share one
+    elastic model; the deflection field is then averaged over the electrode disc (8 × 24
+    points, bilinear) at each distance. thickness h [m], young E [Pa], poisson ν,
+    taxel_radius [m].
     """
     a = np.asarray(radii, dtype=np.float64)
     if a.ndim != 1 or len(a) < 2 or not np.all(np.diff(a) > 0) or not a[0] > 0:
@@ -238,7 +239,6 @@ def radial_responses(
             return out
     half = reach + float(fp.max()) + 2 * cell
     n = 2 * math.ceil(half / cell) + 1  # odd: the contact centre is a cell centre
-    kernel = regular_grid_operator(n, n, cell, cell, thickness, young, poisson, model, psi).kernel
     # The Love operator takes cell pressures [Pa]; the point-force one, forces [N].
     per_cell = 1.0 if model == "love" else cell * cell
     coords = (np.arange(n) - n // 2) * cell
@@ -259,6 +259,11 @@ def radial_responses(
             hi.append((math.floor(px.max()) + 1, math.floor(py.max()) + 1))
     tx0, ty0 = (max(v, 0) for v in np.min(lo, axis=0))
     tx1, ty1 = (min(v, n - 1) for v in np.max(hi, axis=0))
+    # The kernel over the offsets between those cells and the largest contact's block.
+    widest = max(float(radius) for _, radius in profiles)
+    s0, s1 = np.nonzero(np.abs(coords) <= widest + cell)[0][[0, -1]]
+    kx, ky = max(tx1 - s0, s1 - tx0) + 1, max(ty1 - s0, s1 - ty0) + 1
+    kernel = grid_kernel(int(kx), int(ky), cell, cell, thickness, young, poisson, model, psi)
     for k, (fi, radius) in enumerate(profiles):
         s0, s1 = np.nonzero(np.abs(coords) <= radius + cell)[0][[0, -1]]
         block = _cell_pressures(FAMILIES[fi], float(radius), n, cell, young, poisson)

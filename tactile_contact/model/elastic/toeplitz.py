@@ -93,6 +93,37 @@ def _fft_size(n: int) -> int:
     return sfft.next_fast_len(2 * n - 1, real=True)
 
 
+def grid_kernel(
+    nx: int,
+    ny: int,
+    pitch_x: float,
+    pitch_y: float,
+    thickness: float,
+    young: float,
+    poisson: float,
+    model: str = "love",
+    psi: str | float = "exact",
+) -> Array:
+    """(nx, ny) distinct coefficients of a regular grid's influence operator: [i, j] couples
+    two cells i and j steps apart along x and y ([m/Pa] for "love", [m/N] for "boussinesq";
+    :func:`regular_grid_operator`'s ``kernel``, whose arguments these are). Alone for a
+    convolution that needs only some offsets (round_contact.radial_responses)."""
+    for name, value in (("nx", nx), ("ny", ny)):
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+    px, py = float(positive_array("pitch_x", pitch_x)), float(positive_array("pitch_y", pitch_y))
+    h = float(positive_array("thickness", thickness))
+    e, nu = material(young, poisson)
+    dx = np.arange(nx)[:, None] * px
+    dy = np.arange(ny)[None, :] * py
+    if model == "love":
+        return love_effective(dx, dy, 0.5 * px, 0.5 * py, h, e, nu)
+    if model == "boussinesq":
+        self_term = muscari_self(px * py, h, e, psi)
+        return min_magnitude(_effective_zz(np.hypot(dx, dy), h, e, nu), self_term)
+    raise ValueError(f"model must be 'love' or 'boussinesq', got {model!r}")
+
+
 def regular_grid_operator(
     nx: int,
     ny: int,
@@ -111,21 +142,7 @@ def regular_grid_operator(
     :func:`boussinesq_matrix` with area pitch_x·pitch_y and the given psi.
     thickness h [m], young E [Pa], poisson ν ∈ (−1, 0.5].
     """
-    for name, value in (("nx", nx), ("ny", ny)):
-        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-    px, py = float(positive_array("pitch_x", pitch_x)), float(positive_array("pitch_y", pitch_y))
-    h = float(positive_array("thickness", thickness))
-    e, nu = material(young, poisson)
-    dx = np.arange(nx)[:, None] * px
-    dy = np.arange(ny)[None, :] * py
-    if model == "love":
-        kernel = love_effective(dx, dy, 0.5 * px, 0.5 * py, h, e, nu)
-    elif model == "boussinesq":
-        self_term = muscari_self(px * py, h, e, psi)
-        kernel = min_magnitude(_effective_zz(np.hypot(dx, dy), h, e, nu), self_term)
-    else:
-        raise ValueError(f"model must be 'love' or 'boussinesq', got {model!r}")
+    kernel = grid_kernel(nx, ny, pitch_x, pitch_y, thickness, young, poisson, model, psi)
     shape = (_fft_size(nx), _fft_size(ny))
     # Circulant embedding of the even kernel: c[i] = K[|i|] for i = −(n−1)..n−1, zero elsewhere.
     c = np.zeros(shape)
