@@ -260,7 +260,7 @@ def radial_responses(
     tx0, ty0 = (max(v, 0) for v in np.min(lo, axis=0))
     tx1, ty1 = (min(v, n - 1) for v in np.max(hi, axis=0))
     # The kernel over the offsets between those cells and the largest contact's block.
-    widest = max(float(radius) for _, radius in profiles)
+    widest = max((float(radius) for _, radius in profiles), default=0.0)
     s0, s1 = np.nonzero(np.abs(coords) <= widest + cell)[0][[0, -1]]
     kx, ky = max(tx1 - s0, s1 - tx0) + 1, max(ty1 - s0, s1 - ty0) + 1
     kernel = grid_kernel(int(kx), int(ky), cell, cell, thickness, young, poisson, model, psi)
