@@ -17,6 +17,8 @@ from typing import Any
 import can
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from tactile_contact.model.layout import load_layout
 from tactile_contact.model.sensor import SensorParams
@@ -79,6 +81,42 @@ def test_with_buses_a_complete_bus_goes_out_unless_another_is_due_within_the_win
     assert sent("a", 80) == [["a"]]  # can1 overdue by more than the window: not waited for
     alone = Batcher(["a", "b"], 0.002)  # no buses named: the window, as before
     assert alone.add(_frame("a"), now=1.0) == [] and alone.due == pytest.approx(1.002)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(st.tuples(st.sampled_from("abcde"), st.floats(0.0, 0.004)), max_size=60),
+    st.sampled_from([0.0, 0.001, 0.002, 0.005]),
+    st.booleans(),
+)
+def test_every_reading_goes_out_once_within_its_window(events, window, by_bus) -> None:
+    """Any order and timing of readings, the buses known or not, taken at the due time as the
+    driver's receive loop does: every reading goes out exactly once, in the order it came, no
+    batch holds a patch twice, and none goes out later than its first reading's window."""
+    from tactile_contact.canbus.batcher import Batcher
+
+    groups = {"can0": ["a", "b"], "can1": ["c"], "can2": ["d", "e"]} if by_bus else None
+    b = Batcher(list("abcde"), window, groups)
+    sent: list[tuple[float, list]] = []
+    now = 0.0
+    for k, (patch, dt) in enumerate(events):
+        now += dt
+        if b.pending and now >= b.due:
+            sent.append((b.due, b.take()))
+        sent.extend((now, batch) for batch in b.add(_frame_at(patch, now, k), now))
+    if b.pending:
+        sent.append((b.due, b.take()))
+    order = [f.frame_id for _, batch in sent for f in batch]
+    assert order == [str(k) for k in range(len(events))]
+    for at, batch in sent:
+        assert len({f.patch for f in batch}) == len(batch)
+        assert at <= min(f.stamp for f in batch) + window + 1e-12
+
+
+def _frame_at(patch: str, stamp: float, k: int) -> Any:
+    from tactile_contact.canbus.stream import PatchFrame
+
+    return PatchFrame(patch, str(k), stamp, [1], np.zeros(1, np.float32), b"\0", b"\0")
 
 
 class _Bump:
