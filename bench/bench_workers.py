@@ -317,8 +317,12 @@ def run_phase(
     # count difference read a batch at the window's edge, 4-6 rows, as skipped).
     offered_keys: set[tuple[str, int]] = set()
     summarised_keys: set[tuple[str, int]] = set()
+    started = threading.Event()  # (set with the window, never cleared: a summary before it
+    # cannot carry a reading offered in it, so the warm-up's are not read)
 
     def on_contacts(data: bytes) -> None:
+        if not started.is_set():
+            return
         _, r = read_contact_array(data)
         with lock:
             summarised_keys.update(zip(r.patches, r.stamps_ns, strict=True))
@@ -369,6 +373,7 @@ def run_phase(
     source.stdin.flush()
     time.sleep(warmup)  # numba, caches, the fusion's windows
     c0 = [cpu_seconds(p.pid) for p in procs]
+    started.set()
     measuring.set()
     w0 = time.monotonic()
     time.sleep(seconds)
