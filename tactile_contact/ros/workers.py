@@ -4,8 +4,10 @@ A skin too large for one core is served by N ``contact_reconstruction`` processe
 *workers*, on one machine or several in one ROS domain. Each owns a disjoint set of patches:
 
 - :func:`assign_patches` deals the patches to N workers, balanced by taxel count (the solve's
-  cost grows with a patch's taxels), and *stable*: the result depends only on the patch names,
-  their taxel counts and N — not on the order they are listed in, the machine or the time —
+  cost grows with a patch's taxels), each CAN bus whole where that costs little balance (a
+  bus's batches are then read by one worker), and *stable*: the result depends only on the
+  patch names, their taxel counts, their buses and N — not on the order they are listed in,
+  the machine or the time —
   so every worker computes the same split on its own, and a restarted worker takes back the
   patches it had, with nothing to agree on over the network.
 - :class:`Roster` keeps the workers' heartbeats (each worker announces its patches a few times
@@ -26,6 +28,11 @@ HEARTBEAT_PERIOD_S = 0.2
 #: periods, so one late heartbeat on a busy machine is not a death, and a real one is on
 #: /diagnostics well within a second.
 SILENT_AFTER_S = 0.5
+#: How much busier than the patch-by-patch split a worker may be made to keep a bus whole
+#: (:func:`assign_patches`): the robot's 7 buses dealt whole to 2 workers leave the busier 8 %
+#: above (docs/reconstruction_node.md), and a batch read twice cost a worker ≈ 25 % more a
+#: patch-frame at saturation (docs/bench/workers.md).
+BUS_SLACK = 0.1
 
 
 def default_workers(patches: int | None = None) -> int:
@@ -38,17 +45,49 @@ def default_workers(patches: int | None = None) -> int:
     return max(1, min(cores, patches if patches else cores))
 
 
-def assign_patches(taxels: Mapping[str, int], workers: int) -> list[tuple[str, ...]]:
-    """Deal the patches to ``workers`` workers, balanced by taxel count.
+def _deal(
+    items: Iterable[tuple[tuple[str, ...], int]],
+    load: list[tuple[int, int]],
+    owned: list[list[str]],
+) -> None:
+    """Each item (patches, their taxels), in the order given, to the least-loaded worker
+    (``load``: a min-heap of (taxels so far, worker index), changed in place; ``owned``: per
+    worker, its patches)."""
+    for patches, n in items:
+        total, k = heapq.heappop(load)
+        owned[k].extend(patches)
+        heapq.heappush(load, (total + n, k))
+
+
+def _largest_first(taxels: Mapping[str, int]) -> list[tuple[tuple[str, ...], int]]:
+    """Each patch alone, largest first, equal sizes in name order."""
+    return [((p,), taxels[p]) for p in sorted(taxels, key=lambda p: (-taxels[p], p))]
+
+
+def assign_patches(
+    taxels: Mapping[str, int], workers: int, buses: Mapping[str, str] | None = None
+) -> list[tuple[str, ...]]:
+    """Deal the patches to ``workers`` workers, balanced by taxel count, each bus's patches
+    kept with one worker where that costs little balance.
 
     Largest patch first, each to the least-loaded worker (ties: the lower worker index);
     patches of equal size in name order. This greedy rule (longest processing time first)
     leaves the busiest worker at most 4/3 of the best possible split's busiest, and within one
     patch's taxels of the mean.
 
+    With ``buses`` (patch → its CAN bus) the buses are dealt whole the same way, largest
+    first, as long as the least-loaded worker stays within BUS_SLACK of that patch-by-patch
+    split's busiest; a bigger bus is cut: that worker takes what of it fits (largest patches
+    first, at least one) and the rest is dealt again as a smaller bus. Why: a bus's batches
+    reach every worker serving one of its patches (a worker subscribes to its own buses'
+    batches only), so a bus kept whole is taken and read by one process. If the busiest
+    worker still ends more than BUS_SLACK above the patch-by-patch split's, that split is
+    returned; so it is with one bus.
+
     Args:
         taxels: patch name → its taxel count (> 0).
         workers: number of workers (≥ 1).
+        buses: patch name → its bus name (a patch it does not name is a bus of its own).
 
     Returns:
         Per worker, its patches in name order (a worker may get none when there are more
@@ -62,20 +101,61 @@ def assign_patches(taxels: Mapping[str, int], workers: int) -> list[tuple[str, .
     for name, n in taxels.items():
         if isinstance(n, bool) or not isinstance(n, int) or n < 1:
             raise ValueError(f"patch {name!r}: taxel count must be an integer >= 1, got {n!r}")
-    load = [(0, k) for k in range(workers)]  # (taxels so far, worker index): a min-heap
     owned: list[list[str]] = [[] for _ in range(workers)]
-    for name in sorted(taxels, key=lambda p: (-taxels[p], p)):
+    load = [(0, k) for k in range(workers)]
+    _deal(_largest_first(taxels), load, owned)
+    split = [tuple(sorted(names)) for names in owned]
+    if buses is None or workers == 1:
+        return split
+    on_bus: dict[tuple[bool, str], dict[str, int]] = {}
+    for name, n in taxels.items():
+        key = (True, buses[name]) if name in buses else (False, name)
+        on_bus.setdefault(key, {})[name] = n
+    if len(on_bus) < 2:
+        return split
+    limit = (1.0 + BUS_SLACK) * max(total for total, _ in load)
+    owned = [[] for _ in range(workers)]
+    load = [(0, k) for k in range(workers)]
+    # Largest bus first, whole to the least-loaded worker if it fits under the limit; else
+    # that worker takes what of it fits (largest patches first, at least one) and the rest
+    # goes back as a smaller bus: a bus too big for one worker is cut in as few parts as the
+    # greedy rule finds, not spread over every worker.
+    todo = [
+        (-sum(m.values()), key, tuple(sorted(m, key=lambda p: (-m[p], p))))
+        for key, m in on_bus.items()
+    ]
+    heapq.heapify(todo)
+    while todo:
+        size, key, patches = heapq.heappop(todo)
         total, k = heapq.heappop(load)
-        owned[k].append(name)
-        heapq.heappush(load, (total + taxels[name], k))
+        if total - size <= limit:
+            took = list(patches)
+        else:
+            room, took = limit - total, []
+            for p in patches:
+                if taxels[p] <= room or not took:
+                    took.append(p)
+                    room -= taxels[p]
+        owned[k].extend(took)
+        heapq.heappush(load, (total + sum(taxels[p] for p in took), k))
+        rest = tuple(p for p in patches if p not in took)
+        if rest:
+            heapq.heappush(todo, (-sum(taxels[p] for p in rest), key, rest))
+    if max(total for total, _ in load) > limit:
+        return split
     return [tuple(sorted(names)) for names in owned]
 
 
-def worker_patches(taxels: Mapping[str, int], index: int, count: int) -> tuple[str, ...]:
+def worker_patches(
+    taxels: Mapping[str, int],
+    index: int,
+    count: int,
+    buses: Mapping[str, str] | None = None,
+) -> tuple[str, ...]:
     """The patches of worker ``index`` of ``count`` (:func:`assign_patches`)."""
     if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < count:
         raise ValueError(f"worker index must be within 0..{count - 1}, got {index!r}")
-    return assign_patches(taxels, count)[index]
+    return assign_patches(taxels, count, buses)[index]
 
 
 @dataclass
@@ -141,3 +221,24 @@ class Roster:
                 if p in wanted and p not in out:
                     out[p] = w
         return out
+
+
+def bus_filter(served: Iterable[str], known: Iterable[str]) -> str | None:
+    """A DDS content filter (DDS-SQL, as rclpy's ContentFilterOptions takes it) that passes
+    the TaxelBatches a worker serving the buses ``served`` needs: those whose ``bus`` names
+    one of them, alone or in a comma-separated list (a driver of several buses), and those
+    naming no bus. The middleware drops the others before they reach the process: a batch
+    no patch of which is this worker's costs it nothing (each was taken and read before).
+
+    Returns:
+        The expression, or None (take every batch) when ``served`` covers every bus in
+        ``known``, or a bus name cannot be written in it (a quote or a comma).
+    """
+    mine, every = set(served), set(known)
+    if not mine or every <= mine or any("'" in b or "," in b for b in mine):
+        return None
+    terms = ["bus = ''"]
+    for b in sorted(mine - {""}):
+        # (LIKE's wildcards _ and % in a name only let more through, never fewer)
+        terms += [f"bus = '{b}'", f"bus LIKE '{b},%'", f"bus LIKE '%,{b}'", f"bus LIKE '%,{b},%'"]
+    return " OR ".join(terms)
