@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.subscription_content_filter_options import ContentFilterOptions
 
 from tactile_contact.msg import ContactArray, TaxelBatch
 from tactile_contact.ros.cdr import CdrError, ContactRows, read_taxel_batch, write_contact_array
@@ -104,7 +105,7 @@ class ContactBatches:
         batches: subscribe to ``taxel_batches`` (else frames come per patch, PatchPipeline).
     """
 
-    def __init__(self, node: Node, batches: bool) -> None:
+    def __init__(self, node: Node, batches: bool, only: str | None = None) -> None:
         from tactile_contact.ros.patch_pipeline import _UNUSABLE, OUTPUT_QOS, QUIET_EVENTS
         from tactile_contact.ros.quiet_batch import QuietBatch
 
@@ -129,9 +130,33 @@ class ContactBatches:
         self.sub: Any = None
         if batches:
             qos = QoSProfile(depth=BATCH_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
-            self.sub = node.create_subscription(
-                TaxelBatch, BATCHES_TOPIC, self.on_batch, qos, raw=True
-            )
+            self.sub = self._subscribe(qos, only)
+
+    def _subscribe(self, qos: QoSProfile, only: str | None) -> Any:
+        """The ``taxel_batches`` subscription, with the content filter ``only`` if given
+        (workers.bus_filter): the middleware then drops other buses' batches before they
+        reach this process. A middleware that cannot filter (or refuses the expression)
+        gets the subscription without it: every batch, its patches picked here as always."""
+        node = self.node
+        if only is not None:
+            try:
+                sub = node.create_subscription(
+                    TaxelBatch,
+                    BATCHES_TOPIC,
+                    self.on_batch,
+                    qos,
+                    raw=True,
+                    content_filter_options=ContentFilterOptions(only, []),
+                )
+                if sub.is_cft_enabled:
+                    node.get_logger().info(f"taxel_batches filtered: {only}")
+                return sub
+            except Exception as exc:  # (rclpy raises RCLError, or TypeError on an older one)
+                node.get_logger().warning(
+                    f"taxel_batches: no content filter ({type(exc).__name__}: {exc}); "
+                    "taking every bus's batches"
+                )
+        return node.create_subscription(TaxelBatch, BATCHES_TOPIC, self.on_batch, qos, raw=True)
 
     def on_batch(self, data: bytes) -> None:
         """One batch: each patch of it this worker serves, solved; one ContactArray out.

@@ -66,7 +66,7 @@ from tactile_contact.ros.patch_pipeline import (  # noqa: F401  (their old home:
     check_result,
 )
 from tactile_contact.ros.worker_link import WorkerLink
-from tactile_contact.ros.workers import worker_patches
+from tactile_contact.ros.workers import bus_filter, worker_patches
 
 PARAMETERS = (
     "bundles_dir",
@@ -222,8 +222,9 @@ class ContactReconstructionNode(Node):
         self.pipelines: dict[str, PatchPipeline] = {}
         self._refused: dict[Path, tuple] = {}  # bundle → signature of the refused version
         self._paths = self._bundle_paths(requested)
+        counts, buses = self._taxel_counts()
         if worker_count:
-            mine = worker_patches(self._taxel_counts(), worker_index, worker_count)
+            mine = worker_patches(counts, worker_index, worker_count, buses)
             self._paths = {name: path for name, path in self._paths.items() if name in mine}
             self.get_logger().info(
                 f"worker {worker_index} of {worker_count}: patches {sorted(self._paths)}"
@@ -235,7 +236,10 @@ class ContactReconstructionNode(Node):
             worker_count,
             lambda: sum(p.stats.frames for p in self.pipelines.values()),
         )
-        self.batches = ContactBatches(self, self.input == "batches")
+        only = None
+        if all(name in buses for name in self._paths):
+            only = bus_filter({buses[name] for name in self._paths}, buses.values())
+        self.batches = ContactBatches(self, self.input == "batches", only)
         for name, path in self._paths.items():
             sig = bundle_signature(path)
             try:
@@ -274,20 +278,23 @@ class ContactReconstructionNode(Node):
             return self.get_clock().now().nanoseconds
         return time.time_ns()
 
-    def _taxel_counts(self) -> dict[str, int]:
+    def _taxel_counts(self) -> tuple[dict[str, int], dict[str, str]]:
         """Patch → taxels, for the split over workers: from the layout if given (the same
         file on every machine), else from each bundle's manifest (1 if unreadable: the
-        worker given it reports why)."""
+        worker given it reports why); and every patch of the layout → its bus, for the split
+        and the batches' filter: from the layout only (a manifest may name an older bus:
+        moving a patch to another bus needs no rebuild), so without a layout none."""
         if self.layout:
             layout = load_layout(self.layout)
-            return {p.name: len(p.taxel_ids()) for p in layout.patches if p.name in self._paths}
+            counts = {p.name: len(p.taxel_ids()) for p in layout.patches if p.name in self._paths}
+            return counts, {p.name: p.bus for p in layout.patches}
         counts = {}
         for name, path in self._paths.items():
             try:
                 counts[name] = int(read_manifest(path)["arrays"]["taxel_ids"]["shape"][0]) or 1
             except Exception:
                 counts[name] = 1
-        return counts
+        return counts, {}
 
     def build_command(self) -> str:
         """The command that builds the bundles this node looks for."""

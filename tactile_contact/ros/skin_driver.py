@@ -131,7 +131,8 @@ class SkinDriver(LifecycleNode):
         self._diag_lock = threading.Lock()  # the publisher is destroyed under it, used under it
         self._stop = threading.Event()
         self._links: list[_Link] = []  # the buses served, in the order of the bus parameters
-        self._batch_bus = ""  # the TaxelBatch's bus field
+        self._batch_bus = ""  # the TaxelBatch's bus field (one bus served)
+        self._patch_bus: dict[str, str] = {}  # patch → its bus (several buses served)
         self._pubs: dict[str, Publisher] = {}
         self._batch_pub: Publisher | None = None
         self._batcher: Batcher | None = None
@@ -259,7 +260,8 @@ class SkinDriver(LifecycleNode):
             policy = BusErrorPolicy(p["reconnect_after_errors"])
             backoff = Backoff(p["reconnect_interval_s"], p["reconnect_max_interval_s"])
             self._links.append(_Link(name, channel, stream, policy, backoff))
-        self._batch_bus = p["bus"] if len(self._links) == 1 else ",".join(names)
+        self._batch_bus = p["bus"] if len(self._links) == 1 else ""
+        self._patch_bus = {pl.name: pl.bus for pl in patches} if len(self._links) > 1 else {}
         for link in self._links:
             try:
                 link.bus = open_bus(**self._bus_config(link))
@@ -674,9 +676,15 @@ class SkinDriver(LifecycleNode):
             stamps = [round(max(f.stamp, 0.0) * 1e9) for f in frames]
         else:
             stamps = [self.get_clock().now().nanoseconds] * len(frames)
+        bus = self._batch_bus
+        if self._patch_bus:
+            # the buses of this batch's patches, as the links are listed: a worker subscribes
+            # to the batches of its own buses (a content filter on this field)
+            mine = {self._patch_bus.get(f.patch, "") for f in frames}
+            bus = ",".join(link.name for link in self._links if link.name in mine)
         data = write_taxel_batch(
             time.time_ns(),
-            self._batch_bus,
+            bus,
             [f.patch for f in frames],
             [f.frame_id for f in frames],
             stamps,

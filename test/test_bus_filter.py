@@ -1,0 +1,154 @@
+"""A worker takes only its own buses' batches (workers.bus_filter, issue 25).
+
+Real DDS: a ContactReconstructionNode, worker 0 of 2 over a two-bus version of
+config/robot_skin.yaml (the forearm on bus ``arm``, the palm on ``hand``: the split keeps each
+bus whole, so this worker serves the forearm alone), and a publisher of TaxelBatch bytes in
+the same process. Batches of ``hand`` never reach the worker (its ``batches`` count, the
+batches it read, leaves them out); those of ``arm``, those naming no bus and those of a
+driver of both buses (``arm,hand`` and ``hand,arm``) do, and every forearm reading they carry
+is summarised. The expression itself: what it passes is decided by the middleware, so the
+same strings are checked here through Fast DDS; the pure rules (when there is no filter) below.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from tactile_contact.ros.workers import bus_filter
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_no_filter_when_every_bus_is_served_or_a_name_cannot_be_written() -> None:
+    assert bus_filter({"a", "b"}, ["a", "b"]) is None
+    assert bus_filter({"a"}, ["a"]) is None
+    assert bus_filter(set(), ["a", "b"]) is None
+    assert bus_filter({"it's"}, ["it's", "b"]) is None
+    assert bus_filter({"a,b"}, ["a,b", "c"]) is None
+    text = bus_filter({"b", "a"}, ["a", "b", "c"])
+    assert text is not None and text.startswith("bus = '' OR bus = 'a' OR")
+    assert "'b'" in text and "'c'" not in text
+
+
+@pytest.fixture(scope="module")
+def two_buses(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    from tactile_contact.offline.build import build_layout
+
+    out = tmp_path_factory.mktemp("bus_filter")
+    spec = yaml.safe_load((ROOT / "config" / "robot_skin.yaml").read_text())
+    for patch, bus in zip(spec["patches"], ("arm", "hand"), strict=True):
+        patch["bus"] = bus
+    layout = out / "two_buses.yaml"
+    layout.write_text(yaml.safe_dump(spec))
+    build_layout(layout, out / "bundles", jobs=2)
+    return layout, out / "bundles"
+
+
+def _batch(stamp: int, bus: str, patches: list) -> bytes:
+    """One TaxelBatch of ``patches`` (layout patches) naming ``bus``, every reading zero."""
+    from tactile_contact.model.modules import taxel_id
+    from tactile_contact.msg import TaxelArray
+    from tactile_contact.ros.cdr import write_taxel_batch
+
+    ids = [
+        np.array([taxel_id(m.board, m.triangle, c) for m in p.modules for c in range(12)], "u2")
+        for p in patches
+    ]
+    return write_taxel_batch(
+        stamp,
+        bus,
+        [p.name for p in patches],
+        [p.frame_id for p in patches],
+        [stamp] * len(patches),
+        ids,
+        [np.zeros(len(i), np.float32) for i in ids],
+        [np.zeros(len(i), np.uint8) for i in ids],
+        [np.where(p.valid_mask(), 0, TaxelArray.STATUS_DISABLED).astype(np.uint8) for p in patches],
+    )
+
+
+@pytest.mark.ros
+def test_a_worker_reads_only_its_buses_batches(
+    ros_context: object, two_buses: tuple[Path, Path]
+) -> None:
+    from rclpy.experimental import EventsExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from tactile_contact.model.layout import load_layout
+    from tactile_contact.msg import ContactArray, TaxelBatch
+    from tactile_contact.ros import contact_batches
+    from tactile_contact.ros.cdr import read_contact_array
+    from tactile_contact.ros.common import SENSOR_QOS
+    from tactile_contact.ros.contact_reconstruction import ContactReconstructionNode
+
+    layout, bundles = two_buses
+    forearm, palm = load_layout(layout).patches
+    node = ContactReconstructionNode(
+        context=ros_context,
+        parameter_overrides=[
+            Parameter("bundles_dir", value=str(bundles)),
+            Parameter("layout", value=str(layout)),
+            Parameter("input", value="batches"),
+            Parameter("worker_index", value=0),
+            Parameter("worker_count", value=2),
+        ],
+    )
+    other = Node("bus_filter_probe", context=ros_context)
+    pub = other.create_publisher(TaxelBatch, contact_batches.BATCHES_TOPIC, SENSOR_QOS)
+    rows: list[tuple[str, int]] = []
+
+    def summarised(data: bytes) -> None:
+        got = read_contact_array(data)[1]
+        rows.extend(zip(got.patches, got.stamps_ns, strict=True))
+
+    other.create_subscription(
+        ContactArray,
+        contact_batches.CONTACTS_TOPIC,
+        summarised,
+        QoSProfile(depth=64, reliability=ReliabilityPolicy.BEST_EFFORT),
+        raw=True,
+    )
+    executor = EventsExecutor(context=ros_context)
+    executor.add_node(node)
+    executor.add_node(other)
+    try:
+        assert sorted(node.pipelines) == ["forearm"]
+        assert node.batches.sub.is_cft_enabled
+        deadline = time.monotonic() + 60.0
+        while pub.get_subscription_count() < 1 or not node.link.serving:
+            assert time.monotonic() < deadline, "the worker did not come up"
+            executor.spin_once(timeout_sec=0.1)
+        while other.count_publishers(contact_batches.CONTACTS_TOPIC) < 1:
+            assert time.monotonic() < deadline
+            executor.spin_once(timeout_sec=0.1)
+        sent = {"arm": [forearm], "hand": [palm], "": [forearm, palm]}
+        sent.update({"arm,hand": [forearm, palm], "hand,arm": [palm, forearm]})
+        expected: list[tuple[str, int]] = []
+        stamp = time.time_ns()
+        for _ in range(5):
+            for bus, patches in sent.items():
+                stamp += 1_000_000
+                pub.publish(_batch(stamp, bus, patches))
+                expected += [("forearm", stamp)] if forearm in patches else []
+                end = time.monotonic() + 0.02
+                while time.monotonic() < end:
+                    executor.spin_once(timeout_sec=0.005)
+        end = time.monotonic() + 30.0
+        while not set(expected) <= set(rows) and time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.05)
+        for _ in range(20):  # (anything late)
+            executor.spin_once(timeout_sec=0.01)
+        assert sorted(rows) == sorted(expected)  # each forearm reading once, no palm
+        # the five `hand` batches never reached it: 4 of the 5 kinds read, 5 times each
+        assert node.batches.batches == 20
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        other.destroy_node()
