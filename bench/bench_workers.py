@@ -8,10 +8,12 @@ baseline that is the mean of 100 unloaded readings), a group of patches per mess
 groups spread over the 20 ms period. The
 consumers are real ``contact_reconstruction`` processes (``input: batches``, ``worker_index``
 of ``worker_count``) or bench/load_relay_batches.py (the same ROS work, nothing solved); a probe
-takes ``contacts`` and ``taxel_batches``. Every phase waits until its consumers serve, warms
-up, then measures over a window: patch-frames offered (the batches' rows the probe saw) and
-summarised (the ContactArray rows), skipped (the window's readings that no summary carries,
-by patch and stamp, its last batches' summaries waited for), the consumers' process CPU
+takes ``contacts``. Every phase waits until its consumers serve, warms up, then measures over a
+window: patch-frames offered (the batches' rows the source published in it, by its own
+record: a probe subscribing to them took CPU from the workers; a batch the middleware lost is
+now counted as skipped) and summarised (the ContactArray rows), skipped (the window's
+readings that no summary carries, by patch and stamp, its last batches' summaries waited for),
+the consumers' process CPU, the source's and probe's beside it
 (CPU per patch-frame: their CPU time over the rows summarised), the latency of each row (the
 reading's stamp, set when the source sends it as a driver sets the CAN receive time → the
 ContactArray published: one DDS hop, the queue, the solve; the driver's assembly and batch
@@ -19,7 +21,10 @@ window come on top), each consumer's memory; ``--profile S``: py-spy on the firs
 
 - ``kinds``: the relay, then one worker with every patch idle, held still, sliding (the
   scenes of tactile_contact.sim.scenes), 24 patches of 72 taxels at 50 Hz: CPU per
-  patch-frame of each kind beside the relay's;
+  patch-frame of each kind beside the relay's. The 24 patches are on 4 CAN buses of 6 (a
+  72-taxel patch is 12 CAN frames a reading: 24 patches at 50 Hz are 14 400 frames/s, more
+  than one 1 Mbit/s bus carries), so two workers each take two whole buses (the split keeps
+  buses whole) and each batch reaches one of them;
 - ``scale``: scene (a), 24 sliding patches at 50 Hz, two workers;
 - ``saturation``: the sliding scene offered at ``--rate`` (above what one core solves), one
   worker then two: patch-frames summarised per second, and their ratio;
@@ -40,6 +45,7 @@ import argparse
 import collections
 import json
 import os
+import pickle
 import signal
 import subprocess
 import sys
@@ -65,7 +71,6 @@ def readings(layout: Path, scene: str, seconds: float) -> tuple[list, list[list]
     kept in out/bench_workers for the next run of the same layout file and scene (simulating
     34 patches takes longer than a measured phase)."""
     import hashlib
-    import pickle
 
     key = hashlib.sha1(layout.read_bytes() + f"{scene} {seconds}".encode()).hexdigest()[:12]
     cache = OUT / f"readings_{layout.stem}_{scene}_{key}.pkl"
@@ -110,9 +115,10 @@ def simulate(layout: Path, scene: str, seconds: float) -> tuple[list, list[list]
 
 def batch_plan(
     layout: Path, group: str, window_ms: float = 2.0
-) -> list[tuple[float, list[int], list[float]]]:
+) -> list[tuple[float, list[int], list[float], str]]:
     """When each batch of a period goes out and what it holds: (its time in the period, as a
-    fraction of it; the patches' indices; each reading's age when it goes out, as a fraction).
+    fraction of it; the patches' indices; each reading's age when it goes out, as a fraction;
+    its bus field: the buses of its patches, comma-separated, as the driver writes it).
 
     ``group``: a number k (k patches a batch, spread evenly over the period); ``bus`` (one
     batch a bus, the buses spread evenly: one driver a bus); ``one-driver`` (the buses at
@@ -127,18 +133,25 @@ def batch_plan(
     buses: dict[str, list[int]] = {}
     for k, p in enumerate(patches):
         buses.setdefault(p.bus, []).append(k)
+
+    def named(plan: list[tuple[float, list[int], list[float]]]) -> list:
+        return [
+            (at, g, ages, ",".join(b for b in buses if {patches[k].bus for k in g} & {b}))
+            for at, g, ages in plan
+        ]
+
     if group == "period":
-        return [(0.0, list(range(len(patches))), [0.0] * len(patches))]
+        return named([(0.0, list(range(len(patches))), [0.0] * len(patches))])
     if group in ("one-driver", "one-driver-window"):
         rng = np.random.default_rng(7)
         phases = sorted(zip(rng.uniform(0.0, 1.0, len(buses)), buses.values(), strict=True))
-        return driver_batches(phases, window_ms / PERIOD_MS, group == "one-driver")
+        return named(driver_batches(phases, window_ms / PERIOD_MS, group == "one-driver"))
     if group == "bus":
         groups = list(buses.values())
     else:
         k = int(group)
         groups = [list(range(i, min(i + k, len(patches)))) for i in range(0, len(patches), k)]
-    return [(i / len(groups), g, [0.0] * len(g)) for i, g in enumerate(groups)]
+    return named([(i / len(groups), g, [0.0] * len(g)) for i, g in enumerate(groups)])
 
 
 def driver_batches(
@@ -170,9 +183,12 @@ def driver_batches(
     ]
 
 
-def source_process(layout: Path, scene: str, rate_hz: float, group: str) -> None:
+def source_process(layout: Path, scene: str, rate_hz: float, group: str, sent_to: Path) -> None:
     """Publish the scene's batches (as :func:`batch_plan` arranges them) at ``rate_hz``
-    periods a second until SIGINT; READY when made, sending on GO."""
+    periods a second until SIGINT; READY when made, sending on GO. Then what it sent goes to
+    ``sent_to`` (pickle: per batch its publication time [ns since the epoch], patch names and
+    stamps [ns]): what was offered, counted without a subscriber of its own competing with
+    the workers for the cores."""
     import rclpy
     from rclpy.node import Node
 
@@ -190,33 +206,40 @@ def source_process(layout: Path, scene: str, rate_hz: float, group: str) -> None
     period_s = 1.0 / rate_hz
     t0 = time.monotonic()
     j = 0
+    sent: list[tuple[int, list[int], list[int]]] = []
     try:
         while rclpy.ok():
             period, g = divmod(j, len(plan))
-            at, members, ages = plan[g]
+            at, members, ages, bus = plan[g]
             delay = t0 + (period + at) * period_s - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
             rows = per_period[period % len(per_period)]
             now = time.time_ns()
+            stamps = [now - round(a * period_s * 1e9) for a in ages]
             pub.publish(
                 write_taxel_batch(
                     now,
-                    "",
+                    bus,
                     [fixed[k][0] for k in members],
                     [fixed[k][1] for k in members],
-                    [now - round(a * period_s * 1e9) for a in ages],
+                    stamps,
                     [fixed[k][2] for k in members],
                     [rows[k][0] for k in members],
                     [rows[k][1] for k in members],
                     [fixed[k][3] for k in members],
                 )
             )
+            sent.append((now, members, stamps))
             j += 1
     except KeyboardInterrupt:
         pass
     node.destroy_node()
     rclpy.try_shutdown()
+    names = [f[0] for f in fixed]
+    sent_to.write_bytes(
+        pickle.dumps([(t, [names[k] for k in m], st) for t, m, st in sent], protocol=5)
+    )
 
 
 # -- a phase ------------------------------------------------------------------------------------
@@ -256,8 +279,8 @@ def run_phase(
     from rclpy.node import Node
 
     from tactile_contact.model.layout import load_layout
-    from tactile_contact.msg import ContactArray, ReconstructionWorker, TaxelBatch
-    from tactile_contact.ros.cdr import read_contact_array, read_taxel_batch
+    from tactile_contact.msg import ContactArray, ReconstructionWorker
+    from tactile_contact.ros.cdr import read_contact_array
     from tactile_contact.ros.common import SENSOR_QOS
     from tactile_contact.ros.worker_link import HEARTBEAT_QOS, TOPIC
 
@@ -294,8 +317,13 @@ def run_phase(
                     env=worker_env,
                 )
             )
+    sent_file = OUT / f"sent_{os.getpid()}.pkl"
+    sent_file.unlink(missing_ok=True)
     source = subprocess.Popen(
-        [sys.executable, __file__, "--source-child", str(layout), scene, str(rate_hz), str(group)],
+        [
+            *(sys.executable, __file__, "--source-child", str(layout), scene, str(rate_hz)),
+            *(str(group), str(sent_file)),
+        ],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         env=env,
@@ -331,19 +359,11 @@ def run_phase(
                 states.update(r.states)
                 latency.extend(r.latency)
 
-    def on_batch(data: bytes) -> None:
-        if measuring.is_set():
-            view = read_taxel_batch(data)
-            with lock:
-                offered.update(view.patches)
-                offered_keys.update(zip(view.patches, view.stamps_ns, strict=True))
-
     def on_worker(m: ReconstructionWorker) -> None:
         with lock:
             serving[m.worker] = len(m.patches)
 
     probe.create_subscription(ContactArray, "contacts", on_contacts, SENSOR_QOS, raw=True)
-    probe.create_subscription(TaxelBatch, "taxel_batches", on_batch, SENSOR_QOS, raw=True)
     probe.create_subscription(ReconstructionWorker, TOPIC, on_worker, HEARTBEAT_QOS)
     executor = EventsExecutor()
     executor.add_node(probe)
@@ -356,8 +376,7 @@ def run_phase(
     def ready() -> bool:
         with lock:
             up = sum(1 for n in serving.values() if n > 0)
-        # (the probe's own subscription to taxel_batches counted too)
-        return up >= len(procs) and probe.count_subscribers("taxel_batches") >= len(procs) + 1
+        return up >= len(procs) and probe.count_subscribers("taxel_batches") >= len(procs)
 
     deadline = time.monotonic() + 300.0
     while not ready():
@@ -373,23 +392,21 @@ def run_phase(
     source.stdin.flush()
     time.sleep(warmup)  # numba, caches, the fusion's windows
     c0 = [cpu_seconds(p.pid) for p in procs]
+    h0 = (cpu_seconds(source.pid), cpu_seconds(os.getpid()))
     started.set()
     measuring.set()
-    w0 = time.monotonic()
+    w0, w0_ns = time.monotonic(), time.time_ns()
     time.sleep(seconds)
     measuring.clear()
-    wall = time.monotonic() - w0
+    wall, w1_ns = time.monotonic() - w0, time.time_ns()
     c1 = [cpu_seconds(p.pid) for p in procs]
+    harness = (
+        (cpu_seconds(source.pid) - h0[0]) / wall,
+        (cpu_seconds(os.getpid()) - h0[1]) / wall,
+    )
     mem = [memory(p.pid) for p in procs]
     prof = profile(procs[0].pid, profile_s, OUT / f"profile_{consumers}.txt") if profile_s else ""
     time.sleep(0.2)  # (summaries of the window's last batches)
-    with lock:
-        got, sent = sum(rows.values()), sum(offered.values())
-        skipped = len(offered_keys - summarised_keys)
-        lat = np.asarray(latency) * 1e3
-        kinds = {ContactArray.IDLE: "idle", ContactArray.CONTACT: "solved in contact"}
-        kinds.update({ContactArray.HELD: "held", ContactArray.FAILED: "failed"})
-        share = {kinds.get(k, str(k)): n / max(got, 1) for k, n in states.items()}
     for p in (source, *procs):
         p.send_signal(signal.SIGINT)
     for p in (source, *procs):
@@ -397,6 +414,19 @@ def run_phase(
             p.wait(timeout=30)
         except subprocess.TimeoutExpired:
             p.kill()
+    # offered: what the source published within the window, by its own record
+    for t, patches, stamps in pickle.loads(sent_file.read_bytes()):
+        if w0_ns <= t < w1_ns:
+            offered.update(patches)
+            offered_keys.update(zip(patches, stamps, strict=True))
+    sent_file.unlink()
+    with lock:
+        got, sent = sum(rows.values()), sum(offered.values())
+        skipped = len(offered_keys - summarised_keys)
+        lat = np.asarray(latency) * 1e3
+        kinds = {ContactArray.IDLE: "idle", ContactArray.CONTACT: "solved in contact"}
+        kinds.update({ContactArray.HELD: "held", ContactArray.FAILED: "failed"})
+        share = {kinds.get(k, str(k)): n / max(got, 1) for k, n in states.items()}
     stop.set()
     spinner.join(5.0)
     executor.shutdown()
@@ -409,6 +439,7 @@ def run_phase(
         "scene": scene,
         "rate_hz": rate_hz,
         "cpu": cpu,
+        "harness_cpu": harness,
         "offered_per_s": sent / wall,
         "frames_per_s": got / wall,
         "skipped": skipped,
@@ -491,11 +522,17 @@ def main() -> int:
         help="the workers of the phases not marked 'before' run the package in this folder "
         "instead of this tree's (e.g. one commit's files, while others edit the working tree)",
     )
-    ap.add_argument("--source-child", nargs=4, help=argparse.SUPPRESS)
+    ap.add_argument(
+        "--buses",
+        type=int,
+        default=4,
+        help="CAN buses of the 24-patch skin (1: one bus, every worker takes every batch)",
+    )
+    ap.add_argument("--source-child", nargs=5, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.source_child:
-        layout, scene, rate, group = args.source_child
-        source_process(Path(layout), scene, float(rate), group)
+        layout, scene, rate, group, sent_to = args.source_child
+        source_process(Path(layout), scene, float(rate), group, Path(sent_to))
         return 0
     if args.quick:
         args.seconds, args.warmup = 3.0, 3.0
@@ -504,7 +541,7 @@ def main() -> int:
     from tactile_contact.offline.build import build_layout
 
     OUT.mkdir(parents=True, exist_ok=True)
-    layout24 = multi_patch_layout(24, OUT)
+    layout24 = multi_patch_layout(24, OUT, buses=args.buses)
     bundles24 = ROOT / "out" / "bench_load" / "bundles"  # (bench_load's: the same 24 patches)
     build_layout(layout24, bundles24, jobs=2)
     rclpy.init()
@@ -522,7 +559,8 @@ def main() -> int:
         say(
             f"{key}: {r['offered_per_s']:.0f} patch-frames/s offered, {r['frames_per_s']:.0f} "
             f"summarised, {r['skipped']} skipped ({r['skipped_share']:.1%}); CPU "
-            f"{' + '.join(f'{c:.0%}' for c in r['cpu'])} of a core, "
+            f"{' + '.join(f'{c:.0%}' for c in r['cpu'])} of a core (source "
+            f"{r['harness_cpu'][0]:.0%}, probe {r['harness_cpu'][1]:.0%}), "
             f"{r['cpu_per_frame_us']:.0f} µs a patch-frame; latency p50 {r['lat_p50']:.2f} ms, "
             f"p99 {r['lat_p99']:.2f} ms, max {r['lat_max']:.1f} ms; rows "
             + ", ".join(f"{k} {v:.0%}" for k, v in r["states"].items())
@@ -536,7 +574,7 @@ def main() -> int:
     say(f"load average before: {os.getloadavg()[0]:.2f}; {os.cpu_count()} cores")
     rate, n, g = 1000.0 / PERIOD_MS, args.seconds, args.group
     if "kinds" in args.phases or "scale" in args.phases:
-        say(f"-- 24 patches of 72 taxels at 50 Hz, {g} a batch --")
+        say(f"-- 24 patches of 72 taxels on {args.buses} buses at 50 Hz, {g} a batch --")
         relay = phase("relay, 24 patches", layout24, bundles24, "sliding", "relay", 1, rate, g, n)
     if "kinds" in args.phases:
         for scene in ("idle", "held", "sliding"):
@@ -552,7 +590,10 @@ def main() -> int:
     if "scale" in args.phases:
         phase("(a) sliding, 2 workers", layout24, bundles24, "sliding", "workers", 2, rate, g, n)
     if "saturation" in args.phases:
-        say(f"-- saturation: 24 sliding patches offered at {args.rate:.0f} Hz, {g} a batch --")
+        say(
+            f"-- saturation: 24 sliding patches on {args.buses} buses offered at "
+            f"{args.rate:.0f} Hz, {g} a batch --"
+        )
         one = phase(
             "saturation, 1 worker", layout24, bundles24, "sliding", "workers", 1, args.rate, g, n
         )
@@ -569,7 +610,7 @@ def main() -> int:
         plan = batch_plan(ROBOT, rb)
         say(
             f"-- the whole robot (34 patches, 3928 taxels, 7 buses), batches: {rb} "
-            f"({len(plan)} a period, of {', '.join(str(len(m)) for _, m, _ in plan)} patches) --"
+            f"({len(plan)} a period, of {', '.join(str(len(m)) for _, m, *_ in plan)} patches) --"
         )
         phase("relay, robot", ROBOT, ROBOT_BUNDLES, "typical", "relay", 1, rate, rb, n)
         if args.before:

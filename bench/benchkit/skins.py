@@ -19,9 +19,10 @@ from benchkit import LAYOUT
 PERIOD_MS = 20
 
 
-def multi_patch_layout(n: int, folder: Path) -> Path:
+def multi_patch_layout(n: int, folder: Path, buses: int = 1) -> Path:
     """A layout of ``n`` hexagon patches on distinct CAN addresses (names patch<k>, frames
-    skin_patch<k>), written to ``folder``/layout_<n>.yaml."""
+    skin_patch<k>), written to ``folder``/layout_<n>.yaml; with ``buses`` > 1 the patches in
+    that many consecutive runs on buses bus0, bus1, … (``folder``/layout_<n>_<buses>buses.yaml)."""
     doc = yaml.safe_load(LAYOUT.read_text())
     base = doc["patches"][0]
     patches = []
@@ -29,12 +30,14 @@ def multi_patch_layout(n: int, folder: Path) -> Path:
         p = copy.deepcopy(base)
         p["name"] = f"patch{k:02d}"
         p["frame_id"] = f"skin_patch{k:02d}"
+        if buses > 1:
+            p["bus"] = f"bus{k * buses // n}"
         for j, m in enumerate(p["modules"]):
             m["board"] = k // 2
             m["triangle"] = (k % 2) * 6 + j
         patches.append(p)
     doc["patches"] = patches
-    path = folder / f"layout_{n}.yaml"
+    path = folder / (f"layout_{n}.yaml" if buses == 1 else f"layout_{n}_{buses}buses.yaml")
     path.write_text(yaml.safe_dump(doc))
     return path
 
