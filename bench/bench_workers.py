@@ -277,11 +277,11 @@ def run_phase(
     package found there (an older version unpacked, e.g. ``git archive``) instead of this one."""
     from rclpy.experimental import EventsExecutor
     from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     from tactile_contact.model.layout import load_layout
     from tactile_contact.msg import ContactArray, ReconstructionWorker
     from tactile_contact.ros.cdr import read_contact_array
-    from tactile_contact.ros.common import SENSOR_QOS
     from tactile_contact.ros.worker_link import HEARTBEAT_QOS, TOPIC
 
     env = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -363,7 +363,10 @@ def run_phase(
         with lock:
             serving[m.worker] = len(m.patches)
 
-    probe.create_subscription(ContactArray, "contacts", on_contacts, SENSOR_QOS, raw=True)
+    # (best effort as the workers publish, but a deep queue: with sensor data's 5 a probe
+    # thread held up ≈ 15 ms by a busy machine dropped summaries the workers had published)
+    deep = QoSProfile(depth=2000, reliability=ReliabilityPolicy.BEST_EFFORT)
+    probe.create_subscription(ContactArray, "contacts", on_contacts, deep, raw=True)
     probe.create_subscription(ReconstructionWorker, TOPIC, on_worker, HEARTBEAT_QOS)
     executor = EventsExecutor()
     executor.add_node(probe)
