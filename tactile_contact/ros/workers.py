@@ -121,15 +121,15 @@ def assign_patches(
     # that worker takes what of it fits (largest patches first, at least one) and the rest
     # goes back as a smaller bus: a bus too big for one worker is cut in as few parts as the
     # greedy rule finds, not spread over every worker.
-    todo = [
+    todo = [  # (−taxels, bus, its patches largest first): a min-heap, the largest bus first
         (-sum(m.values()), key, tuple(sorted(m, key=lambda p: (-m[p], p))))
         for key, m in on_bus.items()
     ]
     heapq.heapify(todo)
     while todo:
-        size, key, patches = heapq.heappop(todo)
+        minus_size, key, patches = heapq.heappop(todo)
         total, k = heapq.heappop(load)
-        if total - size <= limit:
+        if total - minus_size <= limit:
             took = list(patches)
         else:
             room, took = limit - total, []
