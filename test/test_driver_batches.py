@@ -307,6 +307,10 @@ def test_a_layout_on_several_buses_needs_the_bus_named(ros_context: object, tmp_
     refused.destroy_node()
     served = driver(bus="can1")
     assert len(served._links) == 1 and list(served._pubs) == ["palm"]
+    assert served._batch_bus == "can1"  # (its batches name their bus: workers filter on it)
+    served.destroy_node()
+    served = driver(buses=["can0"])  # one bus given as a list: named all the same
+    assert len(served._links) == 1 and served._batch_bus == "can0"
     served.destroy_node()
 
 

@@ -260,7 +260,8 @@ class SkinDriver(LifecycleNode):
             policy = BusErrorPolicy(p["reconnect_after_errors"])
             backoff = Backoff(p["reconnect_interval_s"], p["reconnect_max_interval_s"])
             self._links.append(_Link(name, channel, stream, policy, backoff))
-        self._batch_bus = p["bus"] if len(self._links) == 1 else ""
+        # (the link's name, not the bus parameter: a driver given buses:=[x] names x too)
+        self._batch_bus = self._links[0].name if len(self._links) == 1 else ""
         self._patch_bus = {pl.name: pl.bus for pl in patches} if len(self._links) > 1 else {}
         for link in self._links:
             try:
