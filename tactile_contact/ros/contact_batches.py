@@ -8,9 +8,10 @@ summaries in one ``ContactArray`` (``contacts``, written as bytes). Per-patch
 ``<patch>/contact`` and the images, markers and clouds go out only while something subscribes
 to them (PatchPipeline).
 
-Batches are taken from one topic for every bus: a worker needs no list of buses, and one
-that falls behind keeps the newest :data:`BATCH_DEPTH` batches (a patch's older frame in
-the queue is skipped once a newer one of it was solved).
+Batches come on one topic for every bus; a worker that knows its buses (from the layout)
+subscribes with a content filter on the batch's ``bus`` so that only theirs reach it
+(workers.bus_filter), and one that falls behind keeps the newest :data:`BATCH_DEPTH` batches
+(a patch's older frame in the queue is skipped once a newer one of it was solved).
 """
 
 from __future__ import annotations
