@@ -1,13 +1,13 @@
 """A worker takes only its own buses' batches (workers.bus_filter, issue 25).
 
-Real DDS: a ContactReconstructionNode, worker 0 of 2 over a two-bus version of
+Real DDS: two ContactReconstructionNodes, workers 0 and 1 of 2 over a two-bus version of
 config/robot_skin.yaml (the forearm on bus ``arm``, the palm on ``hand``: the split keeps each
-bus whole, so this worker serves the forearm alone), and a publisher of TaxelBatch bytes in
-the same process. Batches of ``hand`` never reach the worker (its ``batches`` count, the
-batches it read, leaves them out); those of ``arm``, those naming no bus and those of a
-driver of both buses (``arm,hand`` and ``hand,arm``) do, and every forearm reading they carry
-is summarised. The expression itself: what it passes is decided by the middleware, so the
-same strings are checked here through Fast DDS; the pure rules (when there is no filter) below.
+bus whole, so each worker serves one patch), and a publisher of TaxelBatch bytes in the same
+process. The other bus's batches never reach a worker (its ``batches`` count, the batches it
+read, leaves them out); its own, those naming no bus and those of a driver of both buses
+(``arm,hand`` and ``hand,arm``) do, and every reading is summarised exactly once. What an
+expression passes is decided by the middleware, so the strings are checked through Fast DDS
+here; the pure rules (when there is no filter) below.
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ def _batch(stamp: int, bus: str, patches: list) -> bytes:
 
 
 @pytest.mark.ros
-def test_a_worker_reads_only_its_buses_batches(
+def test_each_worker_reads_only_its_buses_batches(
     ros_context: object, two_buses: tuple[Path, Path]
 ) -> None:
     from rclpy.experimental import EventsExecutor
@@ -90,16 +90,19 @@ def test_a_worker_reads_only_its_buses_batches(
 
     layout, bundles = two_buses
     forearm, palm = load_layout(layout).patches
-    node = ContactReconstructionNode(
-        context=ros_context,
-        parameter_overrides=[
-            Parameter("bundles_dir", value=str(bundles)),
-            Parameter("layout", value=str(layout)),
-            Parameter("input", value="batches"),
-            Parameter("worker_index", value=0),
-            Parameter("worker_count", value=2),
-        ],
-    )
+    workers = [
+        ContactReconstructionNode(
+            context=ros_context,
+            parameter_overrides=[
+                Parameter("bundles_dir", value=str(bundles)),
+                Parameter("layout", value=str(layout)),
+                Parameter("input", value="batches"),
+                Parameter("worker_index", value=index),
+                Parameter("worker_count", value=2),
+            ],
+        )
+        for index in (0, 1)
+    ]
     other = Node("bus_filter_probe", context=ros_context)
     pub = other.create_publisher(TaxelBatch, contact_batches.BATCHES_TOPIC, SENSOR_QOS)
     rows: list[tuple[str, int]] = []
@@ -116,16 +119,17 @@ def test_a_worker_reads_only_its_buses_batches(
         raw=True,
     )
     executor = EventsExecutor(context=ros_context)
-    executor.add_node(node)
-    executor.add_node(other)
+    for node in (*workers, other):
+        executor.add_node(node)
     try:
-        assert sorted(node.pipelines) == ["forearm"]
-        assert node.batches.sub.is_cft_enabled
+        # the split keeps each bus with one worker; each filters to its own
+        assert [sorted(w.pipelines) for w in workers] == [["forearm"], ["palm"]]
+        assert all(w.batches.sub.is_cft_enabled for w in workers)
         deadline = time.monotonic() + 60.0
-        while pub.get_subscription_count() < 1 or not node.link.serving:
-            assert time.monotonic() < deadline, "the worker did not come up"
+        while pub.get_subscription_count() < 2 or not all(w.link.serving for w in workers):
+            assert time.monotonic() < deadline, "the workers did not come up"
             executor.spin_once(timeout_sec=0.1)
-        while other.count_publishers(contact_batches.CONTACTS_TOPIC) < 1:
+        while other.count_publishers(contact_batches.CONTACTS_TOPIC) < 2:
             assert time.monotonic() < deadline
             executor.spin_once(timeout_sec=0.1)
         sent = {"arm": [forearm], "hand": [palm], "": [forearm, palm]}
@@ -136,7 +140,7 @@ def test_a_worker_reads_only_its_buses_batches(
             for bus, patches in sent.items():
                 stamp += 1_000_000
                 pub.publish(_batch(stamp, bus, patches))
-                expected += [("forearm", stamp)] if forearm in patches else []
+                expected += [(p.name, stamp) for p in patches]
                 end = time.monotonic() + 0.02
                 while time.monotonic() < end:
                     executor.spin_once(timeout_sec=0.005)
@@ -145,10 +149,10 @@ def test_a_worker_reads_only_its_buses_batches(
             executor.spin_once(timeout_sec=0.05)
         for _ in range(20):  # (anything late)
             executor.spin_once(timeout_sec=0.01)
-        assert sorted(rows) == sorted(expected)  # each forearm reading once, no palm
-        # the five `hand` batches never reached it: 4 of the 5 kinds read, 5 times each
-        assert node.batches.batches == 20
+        assert sorted(rows) == sorted(expected)  # every reading once, by one worker
+        # another bus's batches never reached a worker: 4 of the 5 kinds each, 5 times
+        assert [w.batches.batches for w in workers] == [20, 20]
     finally:
         executor.shutdown()
-        node.destroy_node()
-        other.destroy_node()
+        for node in (*workers, other):
+            node.destroy_node()
