@@ -222,7 +222,7 @@ class ContactReconstructionNode(Node):
         self.pipelines: dict[str, PatchPipeline] = {}
         self._refused: dict[Path, tuple] = {}  # bundle → signature of the refused version
         self._paths = self._bundle_paths(requested)
-        counts, buses = self._taxel_counts()
+        counts, buses = self._sizes_and_buses()
         if worker_count:
             mine = worker_patches(counts, worker_index, worker_count, buses)
             self._paths = {name: path for name, path in self._paths.items() if name in mine}
@@ -278,7 +278,7 @@ class ContactReconstructionNode(Node):
             return self.get_clock().now().nanoseconds
         return time.time_ns()
 
-    def _taxel_counts(self) -> tuple[dict[str, int], dict[str, str]]:
+    def _sizes_and_buses(self) -> tuple[dict[str, int], dict[str, str]]:
         """Patch → taxels, for the split over workers: from the layout if given (the same
         file on every machine), else from each bundle's manifest (1 if unreadable: the
         worker given it reports why); and every patch of the layout → its bus, for the split
