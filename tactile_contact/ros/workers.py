@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import heapq
 import os
+import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
@@ -224,6 +225,11 @@ class Roster:
         return out
 
 
+#: Bus names bus_filter writes into an expression (LIKE's own wildcard _ and the regular
+#: expression's . only let more through).
+_PLAIN = re.compile(r"[A-Za-z0-9_./:-]*")
+
+
 def bus_filter(served: Iterable[str], known: Iterable[str]) -> str | None:
     """A DDS content filter (DDS-SQL, as rclpy's ContentFilterOptions takes it) that passes
     the TaxelBatches a worker serving the buses ``served`` needs: those whose ``bus`` names
@@ -233,13 +239,14 @@ def bus_filter(served: Iterable[str], known: Iterable[str]) -> str | None:
 
     Returns:
         The expression, or None (take every batch) when ``served`` covers every bus in
-        ``known``, or a bus name cannot be written in it (a quote or a comma).
+        ``known``, or a bus name holds anything but letters, digits and ``_ - . / :`` (Fast
+        DDS turns LIKE into a regular expression: a ``+`` or ``(`` in a name would let its own
+        batches miss, or the expression be refused).
     """
     mine, every = set(served), set(known)
-    if not mine or every <= mine or any("'" in b or "," in b for b in mine):
+    if not mine or every <= mine or not all(_PLAIN.fullmatch(b) for b in mine):
         return None
     terms = ["bus = ''"]
     for b in sorted(mine - {""}):
-        # (LIKE's wildcards _ and % in a name only let more through, never fewer)
         terms += [f"bus = '{b}'", f"bus LIKE '{b},%'", f"bus LIKE '%,{b}'", f"bus LIKE '%,{b},%'"]
     return " OR ".join(terms)
