@@ -32,7 +32,6 @@ other nodes): a pipeline with a node missing is reported, not left half running.
 """
 
 import os
-from typing import Any
 
 from launch import LaunchContext, LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction, Shutdown
@@ -114,6 +113,16 @@ def _nodes(context: LaunchContext) -> list:
     def shared(folder: str, name: str) -> str:  # (test_launch.py checks that these exist)
         return os.path.join(share, folder, name)
 
+    def defaults(node: str) -> dict:
+        """config/<node>.yaml's parameters as a dict. Why not the file: it is keyed by the
+        node's name, so a node started under another (skin_driver_can0, skin_simulator_can1,
+        contact_reconstruction_1) got none of it and ran on its declared defaults — workers
+        read per-patch topics instead of the batches (input: patches)."""
+        import yaml
+
+        with open(shared("config", f"{node}.yaml"), encoding="utf-8") as f:
+            return dict(yaml.safe_load(f)[node]["ros__parameters"])
+
     arg = LaunchConfiguration
     simulate = _true(context, "use_simulator")
     interface = arg("interface").perform(context) or ("udp_multicast" if simulate else "socketcan")
@@ -158,7 +167,7 @@ def _nodes(context: LaunchContext) -> list:
                 output="screen",
                 on_exit=ends_launch("skin_driver"),
                 parameters=[
-                    shared("config", "skin_driver.yaml"),
+                    defaults("skin_driver"),
                     {
                         "layout": layout,
                         "interface": interface,
@@ -181,7 +190,7 @@ def _nodes(context: LaunchContext) -> list:
                     output="screen",
                     on_exit=ends_launch(f"skin_driver{suffix}"),
                     parameters=[
-                        shared("config", "skin_driver.yaml"),
+                        defaults("skin_driver"),
                         {
                             "layout": layout,
                             "interface": interface,
@@ -203,7 +212,7 @@ def _nodes(context: LaunchContext) -> list:
                     output="screen",
                     on_exit=ends_launch(f"skin_simulator{suffix}"),
                     parameters=[
-                        shared("config", "skin_simulator.yaml"),
+                        defaults("skin_simulator"),
                         {
                             "layout": layout,
                             "interface": interface,
@@ -215,7 +224,7 @@ def _nodes(context: LaunchContext) -> list:
                     ],
                 )
             )
-    nodes += _workers(context, layout, common, shared)
+    nodes += _workers(context, layout, common, defaults("contact_reconstruction"))
     if _true(context, "use_monitor"):
         nodes.append(
             Node(
@@ -225,7 +234,7 @@ def _nodes(context: LaunchContext) -> list:
                 namespace=arg("namespace"),
                 output="screen",
                 on_exit=ends_launch("worker_monitor"),
-                parameters=[shared("config", "worker_monitor.yaml"), common],
+                parameters=[defaults("worker_monitor"), common],
             )
         )
     if _true(context, "use_rviz"):
@@ -247,7 +256,7 @@ def _nodes(context: LaunchContext) -> list:
     return nodes
 
 
-def _workers(context: LaunchContext, layout: str, common: dict, shared: Any) -> list:
+def _workers(context: LaunchContext, layout: str, common: dict, defaults: dict) -> list:
     """This machine's reconstruction workers: ``workers`` processes, indices ``first_worker``
     on, of ``worker_count``; each restarted RESPAWN_DELAY_S after it dies."""
     from tactile_contact.model.layout import load_layout
@@ -275,7 +284,7 @@ def _workers(context: LaunchContext, layout: str, common: dict, shared: Any) -> 
             respawn=True,
             respawn_delay=RESPAWN_DELAY_S,
             parameters=[
-                shared("config", "contact_reconstruction.yaml"),
+                defaults,
                 {
                     "bundles_dir": arg("bundles"),
                     "layout": layout,

@@ -66,7 +66,9 @@ def test_every_executable_is_installed() -> None:
 def test_every_file_the_launch_file_names_exists() -> None:
     text = LAUNCH.read_text()
     named = re.findall(r'shared\("(\w+)", "([\w.]+)"\)', text)
-    assert len(named) >= 5, named  # three parameter files, the layout, the rviz configuration
+    # the nodes' parameter files, read by defaults(<node>): config/<node>.yaml
+    named += [("config", f"{n}.yaml") for n in re.findall(r'defaults\("(\w+)"\)', text)]
+    assert len(named) >= 6, named  # four parameter files, the layout, the rviz configuration
     for folder, name in named:
         assert (ROOT / folder / name).is_file(), f"{folder}/{name} named by the launch file"
         assert folder in ("config", "rviz", "launch")

@@ -427,7 +427,9 @@ def test_ros2_launch_one_driver_reads_every_bus(
 ) -> None:
     """``drivers:=one`` on a layout of two buses (robot_skin.yaml with the palm moved to can1:
     the same bundles, a bus is wiring): one skin_driver process reads both simulated buses,
-    both patches' contacts arrive, /diagnostics reports each bus OK; Ctrl-C ends it all."""
+    and two workers (one bus each: both subscribe with a filter on the batches' bus, which the
+    one driver names per batch) get both patches' contacts out, /diagnostics reports each bus
+    OK; Ctrl-C ends it all."""
     _require_ros2()
     import yaml
     from diagnostic_msgs.msg import DiagnosticArray
@@ -444,7 +446,7 @@ def test_ros2_launch_one_driver_reads_every_bus(
     launch = Shell(
         workspace,
         "ros2 launch tactile_contact skin.launch.py use_simulator:=true scenario:=press "
-        f"layout:={layout} bundles:={robot_bundles} workers:=1 drivers:=one",
+        f"layout:={layout} bundles:={robot_bundles} workers:=2 drivers:=one",
     )
     node = Node("one_driver_probe", context=ros_context)
     served: set[str] = set()
@@ -480,6 +482,8 @@ def test_ros2_launch_one_driver_reads_every_bus(
     assert code == 0, launch.output
     assert len(re.findall(r"\[skin_driver-\d+\]: process started", launch.output)) == 1
     assert len(re.findall(r"\[skin_simulator[\w-]*\]: process started", launch.output)) == 2
+    filtered = re.findall(r"taxel_batches filtered: (bus = ''.*)", launch.output)
+    assert len(filtered) == 2 and {"'can0'" in f for f in filtered} == {True, False}, launch.output
     for bad in BAD_OUTPUT:
         assert bad not in launch.output, launch.output
     assert not launch.leftovers(), f"processes left running:\n{launch.output}"
