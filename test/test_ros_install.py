@@ -422,14 +422,16 @@ def robot_bundles(workspace: Path) -> Path:
     return out
 
 
-def test_ros2_launch_one_driver_reads_every_bus(
-    workspace: Path, robot_bundles: Path, ros_context: object
+@pytest.mark.parametrize("drivers", ["one", "per_bus"])
+def test_ros2_launch_on_two_buses_with_two_workers(
+    workspace: Path, robot_bundles: Path, ros_context: object, drivers: str
 ) -> None:
-    """``drivers:=one`` on a layout of two buses (robot_skin.yaml with the palm moved to can1:
-    the same bundles, a bus is wiring): one skin_driver process reads both simulated buses,
-    and two workers (one bus each: both subscribe with a filter on the batches' bus, which the
-    one driver names per batch) get both patches' contacts out, /diagnostics reports each bus
-    OK; Ctrl-C ends it all."""
+    """A layout of two buses (robot_skin.yaml with the palm moved to can1: the same bundles, a
+    bus is wiring) and two workers (one bus each: each subscribes with a filter on the batches'
+    bus). ``drivers:=one``: one skin_driver process reads both simulated buses and names each
+    batch's buses; ``per_bus`` (the default, README's robot line): a driver a bus, each under
+    its own name. Both patches' contacts arrive, /diagnostics reports each bus OK; Ctrl-C ends
+    it all."""
     _require_ros2()
     import yaml
     from diagnostic_msgs.msg import DiagnosticArray
@@ -446,7 +448,7 @@ def test_ros2_launch_one_driver_reads_every_bus(
     launch = Shell(
         workspace,
         "ros2 launch tactile_contact skin.launch.py use_simulator:=true scenario:=press "
-        f"layout:={layout} bundles:={robot_bundles} workers:=2 drivers:=one",
+        f"layout:={layout} bundles:={robot_bundles} workers:=2 drivers:={drivers}",
     )
     node = Node("one_driver_probe", context=ros_context)
     served: set[str] = set()
@@ -465,7 +467,10 @@ def test_ros2_launch_one_driver_reads_every_bus(
     node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 50)
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
-    buses = ("skin_driver: CAN bus can0", "skin_driver: CAN bus can1")
+    if drivers == "one":
+        buses = ("skin_driver: CAN bus can0", "skin_driver: CAN bus can1")
+    else:
+        buses = ("skin_driver_can0: CAN bus", "skin_driver_can1: CAN bus")
 
     def ready() -> bool:
         return {"forearm", "palm"} <= served and all(levels.get(b) == 0 for b in buses)
@@ -480,7 +485,8 @@ def test_ros2_launch_one_driver_reads_every_bus(
         node.destroy_node()
         code = launch.interrupt()
     assert code == 0, launch.output
-    assert len(re.findall(r"\[skin_driver-\d+\]: process started", launch.output)) == 1
+    started = re.findall(r"\[skin_driver[\w-]*\]: process started", launch.output)
+    assert len(started) == (1 if drivers == "one" else 2), started
     assert len(re.findall(r"\[skin_simulator[\w-]*\]: process started", launch.output)) == 2
     filtered = re.findall(r"taxel_batches filtered: (bus = ''.*)", launch.output)
     assert len(filtered) == 2 and {"'can0'" in f for f in filtered} == {True, False}, launch.output
