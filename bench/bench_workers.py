@@ -137,10 +137,12 @@ def batch_plan(
         buses.setdefault(p.bus, []).append(k)
 
     def named(plan: list[tuple[float, list[int], list[float]]]) -> list:
-        return [
-            (at, g, ages, ",".join(b for b in buses if {patches[k].bus for k in g} & {b}))
-            for at, g, ages in plan
-        ]
+        """Each batch with its bus field: its patches' buses in the layout's order."""
+        out = []
+        for at, g, ages in plan:
+            on = {patches[k].bus for k in g}
+            out.append((at, g, ages, ",".join(b for b in buses if b in on)))
+        return out
 
     if group == "period":
         return named([(0.0, list(range(len(patches))), [0.0] * len(patches))])
