@@ -72,6 +72,12 @@ ARGUMENTS = [
         "per_bus: one skin_driver per bus of the layout; one: a single skin_driver reading every "
         "bus (one receive thread each, one taxel_batches stream: fewer messages and processes)",
     ),
+    (
+        "idle_every",
+        "1",
+        "skin_driver: an untouched patch's readings go out every this many periods, a touched "
+        "one's every period (1: every reading; canbus.idle_gate)",
+    ),
     ("use_monitor", "true", "start worker_monitor (one per robot: a dead worker on /diagnostics)"),
 ]
 #: A dead worker is started again after this long [s] (launch respawn).
@@ -156,6 +162,10 @@ def _nodes(context: LaunchContext) -> list:
     drivers = arg("drivers").perform(context).strip()
     if drivers not in ("per_bus", "one"):
         raise ValueError(f"drivers:={drivers!r}: per_bus or one")
+    idle = arg("idle_every").perform(context).strip()
+    if not (idle.isdigit() and 1 <= int(idle) <= 1000):
+        raise ValueError(f"idle_every:={idle!r}: a whole number of periods, 1 to 1000")
+    driving = {"layout": layout, "interface": interface, "idle_every": int(idle)}
     nodes = []
     if _true(context, "use_driver") and drivers == "one" and not single:
         nodes.append(
@@ -169,8 +179,7 @@ def _nodes(context: LaunchContext) -> list:
                 parameters=[
                     defaults("skin_driver"),
                     {
-                        "layout": layout,
-                        "interface": interface,
+                        **driving,
                         "buses": list(buses),
                         "channels": [bus_channel(k, bus) for k, bus in enumerate(buses)],
                     },
@@ -192,8 +201,7 @@ def _nodes(context: LaunchContext) -> list:
                     parameters=[
                         defaults("skin_driver"),
                         {
-                            "layout": layout,
-                            "interface": interface,
+                            **driving,
                             "channel": bus_channel(k, bus),
                             "bus": bus,
                         },

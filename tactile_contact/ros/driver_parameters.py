@@ -27,6 +27,12 @@ PARAMETERS: tuple[tuple[str, Any, str, dict[str, Any]], ...] = (
      "first one not yet published go out in one TaxelBatch (sooner once every patch has one, "
      "or with several buses once its buses are complete and no other is due within it); "
      "0 = each receive's at once", {"unit": "ms", "float_range": (0.0, 100.0)}),
+    ("idle_every", 1, "taxel_batches: an untouched patch's readings (every taxel within "
+     "idle_counts of its baseline, none in contact, status unchanged) go out every this many "
+     "periods; a touched one's every period; 1 = every reading (canbus.idle_gate)",
+     {"int_range": (1, 1000)}),
+    ("idle_counts", 2.0, "|deviation| within which a taxel is untouched for idle_every",
+     {"unit": "8-bit counts", "float_range": (0.0, 255.0)}),
     ("interface", "socketcan", "python-can interface (socketcan, virtual, ...)", {}),
     ("channel", "can0", "python-can channel", {}),
     ("bitrate", 1_000_000, "bit rate for interfaces that set it; 0 = leave as is",

@@ -55,6 +55,7 @@ from tactile_contact.canbus.bus_health import (
     interface_gone,
     may_come_up,
 )
+from tactile_contact.canbus.idle_gate import IdleGate
 from tactile_contact.canbus.stream import (
     BusErrorPolicy,
     PatchFrame,
@@ -136,6 +137,7 @@ class SkinDriver(LifecycleNode):
         self._pubs: dict[str, Publisher] = {}
         self._batch_pub: Publisher | None = None
         self._batcher: Batcher | None = None
+        self._gate: IdleGate | None = None  # which readings the batches carry (idle_every)
         self._subscribed: dict[str, bool] = {}  # patch → <patch>/taxels has a subscriber
         self._ids_u16_cache: dict[str, np.ndarray] = {}
         self._published_patch_messages = 0  # <patch>/taxels sent (only while subscribed)
@@ -288,6 +290,14 @@ class SkinDriver(LifecycleNode):
             [pl.name for pl in patches],
             p["batch_window_ms"] * 1e-3,
             {link.name: [pl.name for pl in patches if pl.bus == link.name] for link in self._links},
+        )
+        self._gate = IdleGate(
+            p["idle_every"],
+            p["idle_counts"],
+            {
+                pl.name: (p["farad_per_count"] or pl.sensor.farad_per_count) * 2.0**pl.sensor.shift
+                for pl in patches
+            },
         )
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", cm.DIAGNOSTICS_QOS)
         self._diag_timer = self.create_timer(p["diagnostics_period_s"], self._publish_diagnostics)
@@ -671,7 +681,12 @@ class SkinDriver(LifecycleNode):
         """One TaxelBatch of ``frames`` (serialized here: rclpy's message objects cost more
         than the rest of the publication, docs/bench/load.md)."""
         pub = self._batch_pub
-        if not frames or pub is None:
+        if pub is None:
+            return
+        gate = self._gate
+        if gate is not None and gate.every > 1:
+            frames = [f for f in frames if gate.passes(f)]
+        if not frames:
             return
         if self._params["stamp_source"] == "can":
             stamps = [round(max(f.stamp, 0.0) * 1e9) for f in frames]
@@ -739,6 +754,9 @@ class SkinDriver(LifecycleNode):
                 d, m = link.stream.tare()
                 done += d
                 missing += m
+        if self._gate is not None:
+            with self._batch_lock:  # (the tared readings go out, whatever they read)
+                self._gate.forget()
         response.success = not missing
         response.message = f"tared patches {done}" + (
             f"; no reading yet from {missing}" if missing else ""
@@ -814,6 +832,8 @@ class SkinDriver(LifecycleNode):
             "bus_problem": "" if bus_open else link.problem,
             "bus_ever_open": link.opened,
             "seconds_since_last_frame": quiet,
+            # (the driver's, over all its buses) idle readings the batches left out
+            "idle_readings_held": self._gate.held if self._gate is not None else 0,
         }
         if bus_values["bus_errors_in_window"]:
             level = max(level, cm.WARN)

@@ -1,0 +1,224 @@
+"""The driver's idle gate (canbus.idle_gate): an untouched patch's readings every ``every``
+periods, a touched one's every period.
+
+Alone: its rules on any sequence of readings (hypothesis) and on a simulated 8-bit skin (the
+skin simulator's frames through the driver's own SkinStream: an idle patch at the
+simulator's noise is held back, a press goes out every period). Then the real driver node on
+a python-can virtual bus with ``idle_every: 5``: the untouched patch's readings reach the
+batches one period in five, the pressed one's every period.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import can
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tactile_contact.canbus.baseline import STATUS_CONTACT, STATUS_STALE
+from tactile_contact.canbus.idle_gate import IdleGate
+from tactile_contact.canbus.stream import PatchFrame
+
+COUNT = 1e-14  # ΔC of one 8-bit count in these tests [F]
+
+
+def _frame(patch: str, counts: list[float], status: list[int] | None = None) -> PatchFrame:
+    n = len(counts)
+    return PatchFrame(
+        patch,
+        patch,
+        0.0,
+        list(range(n)),
+        (np.asarray(counts) * COUNT).astype(np.float32),
+        bytes(n),
+        bytes(status or [0] * n),
+    )
+
+
+def test_every_one_sends_every_reading() -> None:
+    gate = IdleGate(1, 2.0, {"a": COUNT})
+    assert all(gate.passes(_frame("a", [0.0, 0.0])) for _ in range(20))
+    assert gate.passed == 20 and gate.held == 0
+
+
+def test_an_untouched_patch_goes_out_every_nth_period_a_press_every_period() -> None:
+    gate = IdleGate(5, 2.0, {"a": COUNT})
+    quiet = [gate.passes(_frame("a", [1.5, -2.0])) for _ in range(11)]
+    assert quiet == [True, False, False, False, False] * 2 + [True]
+    # a press: at once, every period, whatever came before
+    assert all(gate.passes(_frame("a", [2.5, 0.0])) for _ in range(4))
+    # its release goes out (the first quiet reading after it), then every fifth again
+    assert [gate.passes(_frame("a", [0.0, 0.0])) for _ in range(6)] == [True] + [False] * 4 + [True]
+
+
+def test_contact_flags_status_changes_and_nan_always_go_out() -> None:
+    gate = IdleGate(10, 2.0, {"a": COUNT, "b": COUNT})
+    assert gate.passes(_frame("a", [0.0, 0.0]))
+    assert not gate.passes(_frame("a", [0.0, 0.0]))
+    assert gate.passes(_frame("a", [0.0, 0.0], [0, STATUS_CONTACT]))  # flagged in contact
+    assert gate.passes(_frame("a", [0.0, 0.0], [0, STATUS_STALE]))  # the first quiet after
+    assert not gate.passes(_frame("a", [0.0, 0.0], [0, STATUS_STALE]))
+    assert gate.passes(_frame("a", [0.0, 0.0]))  # its status changed back
+    assert gate.passes(_frame("a", [0.0, float("nan")]))  # a NaN reading is never quiet
+    assert gate.passes(_frame("b", [0.0, 0.0]))  # each patch on its own
+    assert gate.passes(_frame("c", [0.0, 0.0])) and gate.passes(_frame("c", [0.0, 0.0]))
+    gate.forget()  # (a tare) the next reading of each patch goes out
+    assert gate.passes(_frame("b", [0.0, 0.0]))
+
+
+def test_bad_settings_are_refused_with_their_name() -> None:
+    with pytest.raises(ValueError, match="every"):
+        IdleGate(0, 2.0, {})
+    with pytest.raises(ValueError, match="idle_counts"):
+        IdleGate(2, float("nan"), {})
+    with pytest.raises(ValueError, match="patch a"):
+        IdleGate(2, 2.0, {"a": 0.0})
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.integers(1, 8),
+    st.lists(
+        st.tuples(
+            st.sampled_from("ab"),
+            st.lists(st.floats(-4.0, 4.0), min_size=3, max_size=3),
+            st.sampled_from([0, 0, 0, STATUS_CONTACT, STATUS_STALE]),
+        ),
+        max_size=80,
+    ),
+)
+def test_rules_on_any_sequence(every: int, readings: list) -> None:
+    """Whatever the readings: a touched one always goes out; so does the first untouched one
+    after a touched one or a status change; of untouched ones with the same status, at most
+    every−1 in a row are held back; and passed + held counts every reading."""
+    gate = IdleGate(every, 2.0, {"a": COUNT, "b": COUNT})
+    last: dict[str, tuple[bool, bytes]] = {}
+    held_run = {"a": 0, "b": 0}
+    for patch, counts, flag in readings:
+        f = _frame(patch, counts, [flag, 0, 0])
+        touched = flag == STATUS_CONTACT or max(abs(c) for c in counts) > 2.0
+        sent = gate.passes(f)
+        before = last.get(patch)
+        if touched or before is None or before[0] or before[1] != f.status:
+            assert sent
+        if sent:
+            held_run[patch] = 0
+            last[patch] = (touched, f.status)
+        else:
+            held_run[patch] += 1
+            assert held_run[patch] <= every - 1
+    assert gate.passed + gate.held == len(readings)
+
+
+def test_on_a_simulated_skin_idle_patches_are_held_and_a_press_goes_out() -> None:
+    """The skin simulator's 8-bit frames (0.5 count of noise: 2 CDC counts at shift 2) through
+    the driver's SkinStream: after calibration an untouched hexagon's readings go out one in
+    five; one pressed at 1 N goes out every period while pressed."""
+    from tactile_contact.canbus.stream import SkinStream
+    from tactile_contact.model.indenters import HertzSphere
+    from tactile_contact.model.layout import load_layout
+    from tactile_contact.sim.simulator import Indentation, simulator_for_patch
+    from test.test_driver_batches import ROOT
+
+    patch = load_layout(ROOT / "config" / "hexagon_patch.yaml").patches[0]
+    count = patch.sensor.farad_per_count * 2.0**patch.sensor.shift
+    gate = IdleGate(5, 2.0, {patch.name: count})
+    stream = SkinStream([patch], period_s=0.02)
+    sim = simulator_for_patch(patch, period_s=0.02, noise_cdc=2.0, seed=3)
+    at = tuple(patch.taxel_xy()[0])
+    press = Indentation.press(HertzSphere(0.006), 1.0, at, start_s=3.0, ramp_s=0.1, hold_s=2.0)
+    sent: list[tuple[float, bool]] = []
+    for k in range(250):
+        t = k * 0.02
+        for m in sim.period(press, t).messages:
+            for frame in stream.feed(m, t):
+                sent.append((t, gate.passes(frame)))
+    idle = [s for t, s in sent if 1.0 <= t < 2.9]  # calibrated, untouched
+    pressed = [s for t, s in sent if 3.1 <= t < 5.0]
+    assert len(idle) > 80 and 0.18 <= np.mean(idle) <= 0.22
+    assert len(pressed) > 80 and all(pressed)
+
+
+@pytest.mark.ros
+def test_the_driver_sends_an_untouched_patch_every_fifth_period(ros_context: object) -> None:
+    """skin_driver with ``idle_every: 5`` on a virtual bus, the two patches of robot_skin.yaml,
+    the palm pressed from 0.4 s on and the forearm untouched: in the batches the palm's
+    readings follow each other period by period, the forearm's five periods apart (never
+    more), and the driver counts what it held back."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    from tactile_contact.model.layout import load_layout
+    from tactile_contact.sim.simulator import Indentation
+    from test.rosutil import spin_until
+    from test.test_driver_batches import LAYOUT, PERIOD_S, _driver_and_batches, _simulator
+
+    channel = "idle_gate"
+    params = {"interface": "virtual", "channel": channel, "layout": str(LAYOUT)}
+    params |= {"period_ms": 20, "calibration_samples": 2, "batch_window_ms": 5.0}
+    params |= {"idle_every": 5}
+    node, listener, batches = _driver_and_batches(ros_context, params, "idle_listener")
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    executor.add_node(listener)
+    layout = load_layout(LAYOUT)
+    sims = {p.name: _simulator(p, k) for k, p in enumerate(layout.patches)}
+    palm = next(p for p in layout.patches if p.name == "palm")
+    touch: dict[str, Any] = {
+        "palm": Indentation.press(
+            None, 1.0, tuple(palm.taxel_xy()[0]), start_s=0.4, ramp_s=0.1, hold_s=60.0
+        )
+    }
+    bus = can.Bus(interface="virtual", channel=channel)
+    stop = threading.Event()
+
+    def send() -> None:
+        k = 0
+        t0 = time.monotonic()
+        while not stop.is_set():
+            for name, sim in sims.items():
+                for m in sim.period(touch.get(name), k * PERIOD_S).messages:
+                    bus.send(m)
+            k += 1
+            stop.wait(max(0.0, t0 + k * PERIOD_S - time.monotonic()))
+
+    sender = threading.Thread(target=send, daemon=True)
+    try:
+        assert spin_until(
+            executor, lambda: listener.count_publishers("taxel_batches") > 0, timeout_s=10.0
+        )
+        sender.start()
+        stamps: dict[str, list[int]] = {"palm": [], "forearm": []}
+
+        def enough() -> bool:
+            stamps["palm"] = [
+                s
+                for b in batches
+                for n, s in zip(b.patches, b.stamps_ns, strict=True)
+                if n == "palm"
+            ]
+            return len(stamps["palm"]) >= 80
+
+        assert spin_until(executor, enough, timeout_s=20.0)
+        for b in batches:
+            for n, s in zip(b.patches, b.stamps_ns, strict=True):
+                if n == "forearm":
+                    stamps["forearm"].append(s)
+        period_ns = PERIOD_S * 1e9
+        palm_gaps = np.diff(stamps["palm"][-50:]) / period_ns
+        forearm_gaps = np.diff(stamps["forearm"][-10:]) / period_ns
+        assert np.all(palm_gaps < 1.5), palm_gaps  # pressed: every period
+        assert np.all((forearm_gaps > 4.5) & (forearm_gaps < 5.5)), forearm_gaps
+        assert node._gate is not None and node._gate.held >= 4 * 9
+    finally:
+        stop.set()
+        if sender.is_alive():
+            sender.join(2.0)
+        executor.shutdown()
+        node.destroy_node()
+        listener.destroy_node()
+        bus.shutdown()
