@@ -187,12 +187,19 @@ def driver_batches(
     ]
 
 
-def source_process(layout: Path, scene: str, rate_hz: float, group: str, sent_to: Path) -> None:
+def source_process(
+    layout: Path, scene: str, rate_hz: float, group: str, sent_to: Path, idle_every: int = 1
+) -> None:
     """Publish the scene's batches (as :func:`batch_plan` arranges them) at ``rate_hz``
     periods a second until SIGINT; READY when made, sending on GO. Then what it sent goes to
-    ``sent_to`` (pickle: per batch its publication time [ns since the epoch], patch names and
-    stamps [ns]): what was offered, counted without a subscriber of its own competing with
-    the workers for the cores."""
+    ``sent_to`` (pickle: per batch its publication time [ns since the epoch], patch names,
+    stamps [ns] and how many patches it held before the idle gate; then the gate's time [s]
+    and calls): what was offered, counted without a subscriber of its own competing with the
+    workers for the cores.
+
+    ``idle_every`` > 1: each reading goes through the driver's IdleGate (skin_driver
+    ``idle_every``, ``idle_counts`` 2) and the batch carries those it lets through, as the
+    driver's would; a batch left empty is not sent."""
     import rclpy
     from rclpy.node import Node
 
@@ -202,6 +209,18 @@ def source_process(layout: Path, scene: str, rate_hz: float, group: str, sent_to
 
     fixed, per_period = readings(layout, scene, 4.0)
     plan = batch_plan(layout, group)
+    gate = None
+    if idle_every > 1:
+        from tactile_contact.canbus.idle_gate import IdleGate
+        from tactile_contact.model.layout import load_layout
+
+        counts = {
+            p.name: p.sensor.farad_per_count * 2.0**p.sensor.shift
+            for p in load_layout(layout).patches
+        }
+        gate = IdleGate(idle_every, 2.0, counts)
+    statuses = [f[3].tobytes() for f in fixed]
+    gate_s, gate_calls = 0.0, 0
     rclpy.init()
     node = Node("workers_source")
     pub = node.create_publisher(TaxelBatch, "taxel_batches", SENSOR_QOS)
@@ -210,7 +229,7 @@ def source_process(layout: Path, scene: str, rate_hz: float, group: str, sent_to
     period_s = 1.0 / rate_hz
     t0 = time.monotonic()
     j = 0
-    sent: list[tuple[int, list[int], list[int]]] = []
+    sent: list[tuple[int, list[int], list[int], int]] = []
     try:
         while rclpy.ok():
             period, g = divmod(j, len(plan))
@@ -219,6 +238,21 @@ def source_process(layout: Path, scene: str, rate_hz: float, group: str, sent_to
             if delay > 0:
                 time.sleep(delay)
             rows = per_period[period % len(per_period)]
+            j += 1
+            offered = len(members)
+            if gate is not None:
+                frames = [
+                    (k, PatchFrame(fixed[k][0], "", 0.0, [], rows[k][0], b"", statuses[k]))
+                    for k in members
+                ]
+                t = time.perf_counter()
+                passing = [k for k, f in frames if gate.passes(f)]
+                gate_s += time.perf_counter() - t
+                gate_calls += len(frames)
+                members, ages = passing, [ages[members.index(k)] for k in passing]
+                if not members:
+                    sent.append((time.time_ns(), [], [], offered))
+                    continue
             now = time.time_ns()
             stamps = [now - round(a * period_s * 1e9) for a in ages]
             pub.publish(
@@ -234,16 +268,14 @@ def source_process(layout: Path, scene: str, rate_hz: float, group: str, sent_to
                     [fixed[k][3] for k in members],
                 )
             )
-            sent.append((now, members, stamps))
-            j += 1
+            sent.append((now, members, stamps, offered))
     except KeyboardInterrupt:
         pass
     node.destroy_node()
     rclpy.try_shutdown()
     names = [f[0] for f in fixed]
-    sent_to.write_bytes(
-        pickle.dumps([(t, [names[k] for k in m], st) for t, m, st in sent], protocol=5)
-    )
+    record = [(t, [names[k] for k in m], st, n) for t, m, st, n in sent]
+    sent_to.write_bytes(pickle.dumps((record, gate_s, gate_calls), protocol=5))
 
 
 # -- a phase ------------------------------------------------------------------------------------
@@ -274,11 +306,14 @@ def run_phase(
     warmup: float = 5.0,
     profile_s: float = 0.0,
     tree: Path | None = None,
+    idle_every: int = 1,
 ) -> dict:
     """One measured run: the source, ``workers`` workers (or the relay when ``consumers`` is
     "relay"), a probe; patch-frames offered and summarised, CPU, latency, memory, and with
     ``profile_s`` py-spy on the first consumer after the window. ``tree``: the workers run the
-    package found there (an older version unpacked, e.g. ``git archive``) instead of this one."""
+    package found there (an older version unpacked, e.g. ``git archive``) instead of this one.
+    ``idle_every``: the source gates its readings as skin_driver's ``idle_every`` does; the
+    skin's patch-frames (every patch every period, sent or not) are counted beside them."""
     from rclpy.experimental import EventsExecutor
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -326,7 +361,7 @@ def run_phase(
     source = subprocess.Popen(
         [
             *(sys.executable, __file__, "--source-child", str(layout), scene, str(rate_hz)),
-            *(str(group), str(sent_file)),
+            *(str(group), str(sent_file), str(idle_every)),
         ],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
@@ -422,10 +457,13 @@ def run_phase(
         except subprocess.TimeoutExpired:
             p.kill()
     # offered: what the source published within the window, by its own record
-    for t, patches, stamps in pickle.loads(sent_file.read_bytes()):
+    record, gate_s, gate_calls = pickle.loads(sent_file.read_bytes())
+    skin_frames = 0  # every patch every period in the window, sent or held back by the gate
+    for t, patches, stamps, before in record:
         if w0_ns <= t < w1_ns:
             offered.update(patches)
             offered_keys.update(zip(patches, stamps, strict=True))
+            skin_frames += before
     sent_file.unlink()
     with lock:
         got, sent = sum(rows.values()), sum(offered.values())
@@ -453,6 +491,11 @@ def run_phase(
         "skipped_share": skipped / max(len(offered_keys), 1),
         "states": share,
         "cpu_per_frame_us": sum(cpu) * wall / max(got, 1) * 1e6,
+        "idle_every": idle_every,
+        "skin_frames_per_s": skin_frames / wall,
+        # the consumers' CPU over every patch-frame of the skin (the gated ones too)
+        "cpu_per_skin_frame_us": sum(cpu) * wall / max(skin_frames, 1) * 1e6,
+        "gate_us": gate_s / max(gate_calls, 1) * 1e6,
         "lat_p50": float(np.percentile(lat, 50)) if lat.size else float("nan"),
         "lat_p99": float(np.percentile(lat, 99)) if lat.size else float("nan"),
         "lat_max": float(lat.max()) if lat.size else float("nan"),
@@ -545,11 +588,17 @@ def main() -> int:
         default=4,
         help="CAN buses of the 24-patch skin (1: one bus, every worker takes every batch)",
     )
-    ap.add_argument("--source-child", nargs=5, help=argparse.SUPPRESS)
+    ap.add_argument(
+        "--idle-every",
+        type=int,
+        default=5,
+        help="kinds: also the idle scene with the driver's idle gate (skin_driver idle_every)",
+    )
+    ap.add_argument("--source-child", nargs=6, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.source_child:
-        layout, scene, rate, group, sent_to = args.source_child
-        source_process(Path(layout), scene, float(rate), group, Path(sent_to))
+        layout, scene, rate, group, sent_to, every = args.source_child
+        source_process(Path(layout), scene, float(rate), group, Path(sent_to), int(every))
         return 0
     if args.quick:
         args.seconds, args.warmup = 3.0, 3.0
@@ -569,9 +618,9 @@ def main() -> int:
         print(text, flush=True)
         lines.append(text)
 
-    def phase(key: str, *a: object, tree: Path | None = None) -> dict:
+    def phase(key: str, *a: object, tree: Path | None = None, idle_every: int = 1) -> dict:
         tree = tree or args.after
-        r = run_phase(*a, args.warmup, args.profile, tree)  # type: ignore[arg-type]
+        r = run_phase(*a, args.warmup, args.profile, tree, idle_every)  # type: ignore[arg-type]
         results[key] = r
         say(
             f"{key}: {r['offered_per_s']:.0f} patch-frames/s offered, {r['frames_per_s']:.0f} "
@@ -603,6 +652,18 @@ def main() -> int:
                 f"   {scene}: {r['cpu_per_frame_us']:.0f} µs a patch-frame all-in, "
                 f"×{r['cpu_per_frame_us'] / relay['cpu_per_frame_us']:.2f} the relay's "
                 f"{relay['cpu_per_frame_us']:.0f} µs"
+            )
+        if args.idle_every > 1:
+            k = args.idle_every
+            a = (layout24, bundles24, "idle", "workers", 1, rate, g, n)
+            r = phase(f"idle, 1 worker, idle_every {k}", *a, idle_every=k)
+            total = r["cpu_per_skin_frame_us"] + r["gate_us"]
+            say(
+                f"   idle, the driver's gate at {k}: {r['skin_frames_per_s']:.0f} patch-frames/s "
+                f"of the skin, {r['offered_per_s']:.0f} sent; {total:.1f} µs a patch-frame of "
+                f"the skin all-in (worker {r['cpu_per_skin_frame_us']:.1f} + the gate "
+                f"{r['gate_us']:.1f} in the driver), "
+                f"×{total / relay['cpu_per_frame_us']:.2f} the relay's"
             )
     if "scale" in args.phases:
         phase("(a) sliding, 2 workers", layout24, bundles24, "sliding", "workers", 2, rate, g, n)

@@ -77,29 +77,34 @@ class IdleGate:
         if limit is None:
             return False
         status = np.frombuffer(frame.status, dtype=np.uint8)
-        if (status & STATUS_CONTACT).any():
-            return False
-        # (not (x > limit): a NaN reading is never quiet)
-        return bool(np.all(np.abs(frame.delta_c) <= limit))
+        return not (status & STATUS_CONTACT).any() and self._within(frame.delta_c, limit)
+
+    @staticmethod
+    def _within(delta_c: np.ndarray, limit: np.float32) -> bool:
+        # Two reductions instead of |ΔC| ≤ limit taxel by taxel (a third of the time, which
+        # the driver pays per reading); a NaN makes min and max NaN, and NaN is never within.
+        return bool(-limit <= delta_c.min()) and bool(delta_c.max() <= limit)
 
     def passes(self, frame: PatchFrame) -> bool:
         """Whether ``frame`` goes out; called once per reading, in order, per patch."""
         if self.every == 1:
             self.passed += 1
             return True
-        quiet = self.quiet(frame)
         last = self._last.get(frame.patch)
+        # Held back only while quiet with the status of the last sent, which was quiet (so
+        # nothing in it was in contact: the status flags need no look of their own).
         if (
             last is not None
-            and quiet
             and last.quiet
-            and frame.status == last.status
             and last.since + 1 < self.every
+            and frame.status == last.status
+            and frame.patch in self._limit
+            and self._within(frame.delta_c, self._limit[frame.patch])
         ):
             last.since += 1
             self.held += 1
             return False
-        self._last[frame.patch] = _Last(quiet, bytes(frame.status))
+        self._last[frame.patch] = _Last(self.quiet(frame), bytes(frame.status))
         self.passed += 1
         return True
 
