@@ -34,11 +34,18 @@ window come on top), each consumer's memory; ``--profile S``: py-spy on the firs
   the start when missing: ≈ 90 s of CPU), scene (b) (typical), one batch a bus: the relay,
   one worker, two workers (latency, CPU, memory per worker).
 
+With ``--idle-every K`` (default 5; 1: off) ``kinds`` and ``robot`` also run the idle scene
+and scene (b) with the source's readings through the driver's idle gate
+(tactile_contact.canbus.idle_gate, skin_driver ``idle_every: K``): an untouched patch's
+reading sent every K periods, a touched one's every period. Their CPU is also given per
+patch-frame of the skin (every patch every period, sent or held back), with the gate's own
+time (measured in the source, as the driver would spend it) beside it.
+
 A markdown table of every phase closes the output.
 
     python bench/bench_workers.py [--phases kinds scale saturation robot] [--seconds 20]
                                   [--warmup 5] [--quick] [--rate 300] [--group 6] [--profile S]
-                                  [--out docs/bench]
+                                  [--idle-every 5] [--out docs/bench]
 """
 
 from __future__ import annotations
@@ -694,6 +701,16 @@ def main() -> int:
         if args.before:
             a = (ROBOT, ROBOT_BUNDLES, "typical", "workers", 1, rate, rb, n)
             phase("(b) typical, 1 worker, before", *a, tree=args.before)
+        if args.idle_every > 1:
+            k = args.idle_every
+            a = (ROBOT, ROBOT_BUNDLES, "typical", "workers", 1, rate, rb, n)
+            r = phase(f"(b) typical, 1 worker, idle_every {k}", *a, idle_every=k)
+            say(
+                f"   (b) with the driver's gate at {k}: {r['offered_per_s']:.0f} of "
+                f"{r['skin_frames_per_s']:.0f} patch-frames/s sent; the worker "
+                f"{r['cpu'][0]:.0%} of a core, {r['cpu_per_skin_frame_us']:.1f} µs a "
+                f"patch-frame of the skin (+ the gate {r['gate_us']:.1f} in the driver)"
+            )
         for w in (1, 2):
             phase(
                 f"(b) typical, {w} worker(s)",
