@@ -48,12 +48,33 @@ def test_every_one_sends_every_reading() -> None:
 
 def test_an_untouched_patch_goes_out_every_nth_period_a_press_every_period() -> None:
     gate = IdleGate(5, 2.0, {"a": COUNT})
-    quiet = [gate.passes(_frame("a", [1.5, -2.0])) for _ in range(11)]
+    quiet = [gate.passes(_frame("a", [0.5, -0.75 if k % 2 else 0.75])) for k in range(11)]
     assert quiet == [True, False, False, False, False] * 2 + [True]
     # a press: at once, every period, whatever came before
     assert all(gate.passes(_frame("a", [2.5, 0.0])) for _ in range(4))
-    # its release goes out (the first quiet reading after it), then every fifth again
-    assert [gate.passes(_frame("a", [0.0, 0.0])) for _ in range(6)] == [True] + [False] * 4 + [True]
+    # its release goes out, so do the readings after it until the running mean has settled
+    # (1.87 counts → 1.40 → 1.05 → 0.79, within half of idle_counts) and the first settled
+    # one, then every fifth again
+    after = [gate.passes(_frame("a", [0.0, 0.0])) for _ in range(13)]
+    assert after == [True] * 3 + [False] * 4 + [True] + [False] * 4 + [True]
+
+
+def test_a_light_press_goes_out_once_its_running_mean_shows_it() -> None:
+    """Readings within idle_counts (3) on every taxel: noise of ±2 counts is held back, a
+    steady 2 counts goes out from its 5th reading on (the mean past 1.5), 3 counts from its
+    3rd; its release, once the mean has settled again, goes out too."""
+    gate = IdleGate(50, 3.0, {"a": COUNT})
+    assert gate.passes(_frame("a", [0.0, 0.0]))
+    noise = [gate.passes(_frame("a", [2.0 if k % 2 else -2.0, 0.0])) for k in range(20)]
+    assert not any(noise)
+    two = [gate.passes(_frame("a", [0.0, 2.0])) for _ in range(8)]
+    assert two == [False] * 4 + [True] * 4
+    gate.forget()
+    assert gate.passes(_frame("a", [0.0, 0.0]))
+    three = [gate.passes(_frame("a", [3.0, 0.0])) for _ in range(4)]
+    assert three == [False, False, True, True]
+    after = [gate.passes(_frame("a", [0.0, 0.0])) for _ in range(8)]
+    assert after[:2] == [True, True] and after[-1] is False and sum(after) <= 4
 
 
 def test_contact_flags_status_changes_and_nan_always_go_out() -> None:
@@ -127,7 +148,7 @@ def test_on_a_simulated_skin_idle_patches_are_held_and_a_press_goes_out() -> Non
 
     patch = load_layout(ROOT / "config" / "hexagon_patch.yaml").patches[0]
     count = patch.sensor.farad_per_count * 2.0**patch.sensor.shift
-    gate = IdleGate(5, 2.0, {patch.name: count})
+    gate = IdleGate(5, 3.0, {patch.name: count})
     stream = SkinStream([patch], period_s=0.02)
     sim = simulator_for_patch(patch, period_s=0.02, noise_cdc=2.0, seed=3)
     at = tuple(patch.taxel_xy()[0])

@@ -1,23 +1,34 @@
 """Which patch readings go out when most of the skin is untouched: send on change.
 
 A robot's skin is mostly idle, and each reading a worker takes costs it a message's share of
-the middleware whatever it holds (docs/bench/load.md: 90 µs an idle patch-frame all-in, of
-which 34 are the relay's). :class:`IdleGate` lets a patch's readings through while anything
-happens on it, and an untouched patch's only every ``every``-th period, as event-driven skins
-do (a reading is sent when it changes beyond a threshold, and a keep-alive otherwise).
+the middleware whatever it holds (docs/bench/load.md). :class:`IdleGate` lets a patch's
+readings through while anything happens on it, and an untouched patch's only every
+``every``-th period, as event-driven skins do (a reading is sent when it changes beyond a
+threshold, and a keep-alive otherwise).
 
-A reading is *quiet* when every taxel reads within ``idle_counts`` 8-bit counts of its baseline
-(|ΔC| ≤ idle_counts · the patch's ΔC of one count), none is flagged in contact, and its status
-flags are those of the patch's last reading sent. A reading goes out when
+A reading is *quiet* when, on every taxel,
+
+- it is within ``idle_counts`` 8-bit counts of its baseline (|ΔC| ≤ idle_counts · the patch's
+  ΔC of one count), and
+- the running mean of the patch's readings (an exponential mean, gain :data:`MEAN_GAIN` a
+  reading) is within half of that,
+
+no taxel is flagged in contact, and its status flags are those of the patch's last reading
+sent. The running mean is what catches a light press: one reading 2–3 counts above its
+baseline on a taxel is within the noise of one reading (at 0.5 count of noise and 8-bit
+rounding, 2 counts is crossed by noise in one taxel reading of 2 700), but the mean of the
+last few is not (a steady 2 counts crosses 1.5 after 5 readings, 3 counts after 3; the mean of
+0.5-count noise has σ ≈ 0.2 count).
+
+A reading goes out when
 
 - it is not quiet (a press at once, at full rate, for as long as it lasts);
 - the patch's last reading sent was not quiet (the first quiet one after a press: its release);
 - or ``every`` periods have passed since the patch's last reading sent (the keep-alive).
 
-What a worker loses with it: an idle patch's readings come ``every`` times less often, so a
-press that stays within ``idle_counts`` on every taxel (found only by averaging many readings,
-issue 26's light presses) is found ``every`` times later. A press beyond it is not delayed.
-``every`` = 1 sends every reading (the default).
+What a worker loses with it: a press within the thresholds on every taxel (below ≈ 1.5 counts
+on the mean) reaches it ``every`` times less often, and one that crosses only the mean's
+threshold a few readings late. ``every`` = 1 sends every reading (the default).
 
 ROS-free; the driver (:mod:`tactile_contact.ros.skin_driver`) applies it to its batches.
 """
@@ -26,21 +37,28 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from tactile_contact.canbus.baseline import STATUS_CONTACT
 from tactile_contact.canbus.stream import PatchFrame
 
+#: Weight of the newest reading in a taxel's running mean: the mean of about the last
+#: 2/MEAN_GAIN − 1 = 7 readings (its noise is √(g/(2−g)) ≈ 0.38 of one reading's).
+MEAN_GAIN = np.float32(0.25)
+
 
 @dataclass
-class _Last:
-    """A patch's last reading sent: whether it was quiet, its status, periods since."""
+class _State:
+    """A patch's running mean [F], and its last reading sent: whether it was quiet, its
+    status flags, periods since."""
 
-    quiet: bool
-    status: bytes
+    mean: np.ndarray
+    quiet: bool = False
+    status: bytes = b""
     since: int = 0
+    sent: bool = field(default=False)
 
 
 class IdleGate:
@@ -48,7 +66,8 @@ class IdleGate:
 
     Args:
         every: an untouched patch's readings go out every this many periods (1: all).
-        idle_counts: a taxel within this many 8-bit counts of its baseline is untouched.
+        idle_counts: a taxel within this many 8-bit counts of its baseline is untouched (its
+            running mean within half of it).
         count_farad: per patch, the ΔC of one 8-bit count [F] (farad_per_count · 2**shift);
             a patch not in it is never gated.
     """
@@ -63,55 +82,57 @@ class IdleGate:
                 raise ValueError(f"idle gate: patch {name}'s ΔC of one count must be > 0, got {c}")
         self.every = every
         self.idle_counts = float(idle_counts)
-        # |ΔC| at or below this is untouched [F], per patch (float32: as ΔC is compared)
+        # |ΔC| and |mean ΔC| at or below these are untouched [F], per patch (float32: as ΔC)
         self._limit = {n: np.float32(idle_counts * c) for n, c in count_farad.items()}
-        self._last: dict[str, _Last] = {}
+        self._state: dict[str, _State] = {}
         #: Readings let through and held back since the start.
         self.passed = 0
         self.held = 0
 
-    def quiet(self, frame: PatchFrame) -> bool:
-        """Whether ``frame`` is untouched: every |ΔC| within the limit (NaN is not), no taxel
-        in contact. (Its status against the last sent is :meth:`passes`'s to compare.)"""
-        limit = self._limit.get(frame.patch)
-        if limit is None:
-            return False
-        status = np.frombuffer(frame.status, dtype=np.uint8)
-        return not (status & STATUS_CONTACT).any() and self._within(frame.delta_c, limit)
-
     @staticmethod
-    def _within(delta_c: np.ndarray, limit: np.float32) -> bool:
-        # Two reductions instead of |ΔC| ≤ limit taxel by taxel (a third of the time, which
+    def _within(a: np.ndarray, limit: np.float32) -> bool:
+        # Two reductions instead of |a| ≤ limit element by element (a third of the time, which
         # the driver pays per reading); a NaN makes min and max NaN, and NaN is never within.
-        return bool(-limit <= delta_c.min()) and bool(delta_c.max() <= limit)
+        return bool(-limit <= a.min()) and bool(a.max() <= limit)
 
     def passes(self, frame: PatchFrame) -> bool:
         """Whether ``frame`` goes out; called once per reading, in order, per patch."""
-        if self.every == 1:
+        limit = self._limit.get(frame.patch)
+        if self.every == 1 or limit is None:
             self.passed += 1
             return True
-        last = self._last.get(frame.patch)
+        dc = frame.delta_c
+        st = self._state.get(frame.patch)
+        if st is None or st.mean.shape != dc.shape:
+            st = self._state[frame.patch] = _State(np.zeros(dc.shape, np.float32))
+        mean = st.mean
+        mean += MEAN_GAIN * (dc - mean)
+        settled = self._within(mean, limit * np.float32(0.5))
+        if not settled and not np.isfinite(mean).all():
+            mean[:] = 0.0  # (a NaN reading goes out; it must not stay in the mean)
         # Held back only while quiet with the status of the last sent, which was quiet (so
         # nothing in it was in contact: the status flags need no look of their own).
         if (
-            last is not None
-            and last.quiet
-            and last.since + 1 < self.every
-            and frame.status == last.status
-            and frame.patch in self._limit
-            and self._within(frame.delta_c, self._limit[frame.patch])
+            st.sent
+            and st.quiet
+            and st.since + 1 < self.every
+            and settled
+            and frame.status == st.status
+            and self._within(dc, limit)
         ):
-            last.since += 1
+            st.since += 1
             self.held += 1
             return False
-        self._last[frame.patch] = _Last(self.quiet(frame), bytes(frame.status))
+        status = np.frombuffer(frame.status, dtype=np.uint8)
+        st.quiet = settled and not (status & STATUS_CONTACT).any() and self._within(dc, limit)
+        st.status, st.since, st.sent = bytes(frame.status), 0, True
         self.passed += 1
         return True
 
     def forget(self, patch: str | None = None) -> None:
         """Start ``patch`` (None: every patch) afresh: its next reading goes out (after a
-        bus reopened, a tare: the worker must see the first reading of the new state)."""
+        tare: the worker must see the first reading of the new state)."""
         if patch is None:
-            self._last.clear()
+            self._state.clear()
         else:
-            self._last.pop(patch, None)
+            self._state.pop(patch, None)

@@ -31,7 +31,7 @@ PARAMETERS: tuple[tuple[str, Any, str, dict[str, Any]], ...] = (
      "idle_counts of its baseline, none in contact, status unchanged) go out every this many "
      "periods; a touched one's every period; 1 = every reading (canbus.idle_gate)",
      {"int_range": (1, 1000)}),
-    ("idle_counts", 2.0, "|deviation| within which a taxel is untouched for idle_every",
+    ("idle_counts", 3.0, "|deviation| within which a taxel is untouched for idle_every",
      {"unit": "8-bit counts", "float_range": (0.0, 255.0)}),
     ("interface", "socketcan", "python-can interface (socketcan, virtual, ...)", {}),
     ("channel", "can0", "python-can channel", {}),
