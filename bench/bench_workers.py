@@ -205,7 +205,7 @@ def source_process(
     workers for the cores.
 
     ``idle_every`` > 1: each reading goes through the driver's IdleGate (skin_driver
-    ``idle_every``, ``idle_counts`` 2) and the batch carries those it lets through, as the
+    ``idle_every``, ``idle_counts`` 3) and the batch carries those it lets through, as the
     driver's would; a batch left empty is not sent."""
     import rclpy
     from rclpy.node import Node
@@ -225,7 +225,7 @@ def source_process(
             p.name: p.sensor.farad_per_count * 2.0**p.sensor.shift
             for p in load_layout(layout).patches
         }
-        gate = IdleGate(idle_every, 2.0, counts)
+        gate = IdleGate(idle_every, 3.0, counts)  # (skin_driver's idle_counts default)
     statuses = [f[3].tobytes() for f in fixed]
     gate_s, gate_calls = 0.0, 0
     rclpy.init()
