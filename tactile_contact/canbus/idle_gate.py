@@ -51,10 +51,11 @@ MEAN_GAIN = np.float32(0.25)
 
 @dataclass
 class _State:
-    """A patch's running mean [F], and its last reading sent: whether it was quiet, its
-    status flags, periods since."""
+    """A patch's running mean [F] and a scratch array, and its last reading sent: whether it
+    was quiet, its status flags, periods since."""
 
     mean: np.ndarray
+    step: np.ndarray
     quiet: bool = False
     status: bytes = b""
     since: int = 0
@@ -104,9 +105,13 @@ class IdleGate:
         dc = frame.delta_c
         st = self._state.get(frame.patch)
         if st is None or st.mean.shape != dc.shape:
-            st = self._state[frame.patch] = _State(np.zeros(dc.shape, np.float32))
-        mean = st.mean
-        mean += MEAN_GAIN * (dc - mean)
+            zeros = np.zeros(dc.shape, np.float32)
+            st = self._state[frame.patch] = _State(zeros, zeros.copy())
+        mean, step = st.mean, st.step
+        # mean += MEAN_GAIN · (dc − mean), in place (the driver pays this per reading)
+        np.subtract(dc, mean, out=step)
+        step *= MEAN_GAIN
+        mean += step
         settled = self._within(mean, limit * np.float32(0.5))
         if not settled and not np.isfinite(mean).all():
             mean[:] = 0.0  # (a NaN reading goes out; it must not stay in the mean)
