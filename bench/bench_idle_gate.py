@@ -4,12 +4,13 @@ many idle readings it sends, and what it costs per reading beside the driver's o
 The simulated default hexagon (point taxels, 8-bit readings, Gaussian CDC noise) goes through
 the driver's SkinStream (module frames → patch readings, baseline, ΔC) and an IdleGate, as in
 skin_driver. Each press of the accuracy protocol (4 indenters × the forces × 6 places: over
-a taxel, between two, between three, on two modules) starts after 1 s of idle readings at a
-random phase of the keep-alive; the figure is the number of periods from its start to its first
-reading the gate sends (0 or 1: at once; ``every``: only the keep-alive found it). Idle
-readings: the share of the readings before the presses that went out (1/every when noise
-never crosses the thresholds). Cost: the gate's time per reading beside SkinStream.feed's for
-the same readings (the driver's per-reading work before it; ratio in the same run).
+a taxel, between two, between three, on two modules) starts after two whole keep-alive
+cycles of idle readings at a random phase of the keep-alive; the figure is the number of
+periods from its start to its first reading the gate sends (0 or 1: at once; ``every``: only
+the keep-alive found it). Idle readings: the share of those two cycles' readings that went
+out (1/every when noise never crosses the thresholds). Cost: the gate's time per reading
+beside SkinStream.feed's for the same readings (the driver's per-reading work before it;
+their ratio in the same run).
 
     python bench/bench_idle_gate.py [--every 10] [--noise 0.5 0.7] [--out docs/bench]
 """
@@ -53,7 +54,10 @@ def run(every: int, noise: float, seed: int = 1) -> dict:
                 )
                 stream = SkinStream([patch], period_s=PERIOD_S)
                 gate = IdleGate(every, IDLE_COUNTS, {patch.name: count})
-                onset = 1.0 + rng.uniform(0.0, every) * PERIOD_S
+                # idle readings counted over two whole keep-alive cycles after calibration
+                # (0.4 s), then the press at a random phase of the keep-alive
+                idle_end = 0.5 + 2 * every * PERIOD_S
+                onset = idle_end + 0.1 + rng.uniform(0.0, every) * PERIOD_S
                 press = Indentation.press(
                     ind, force, tuple(centre), start_s=onset, ramp_s=0.01, hold_s=2.0
                 )
@@ -68,7 +72,7 @@ def run(every: int, noise: float, seed: int = 1) -> dict:
                     t2 = time.perf_counter()
                     feed_s, gate_s, readings = feed_s + t1 - t0, gate_s + t2 - t1, readings + 1
                     for s in sent:
-                        if 0.6 <= t < onset - PERIOD_S:
+                        if 0.5 <= t < idle_end - 1e-9:
                             idle.append(s)
                         if s and t >= onset and first is None:
                             first = round((t - onset) / PERIOD_S)
