@@ -276,20 +276,26 @@ def test_ros2_run_starts_the_driver_and_ctrl_c_stops_it(workspace: Path) -> None
         assert bad not in run.output, run.output
 
 
+@pytest.mark.parametrize("idle_every", [None, 5])
 def test_ros2_launch_with_the_simulator(
-    workspace: Path, bundles: Path, ros_context: object
+    workspace: Path, bundles: Path, ros_context: object, idle_every: int | None
 ) -> None:
     """The README's launch line with a bus named: contacts with a force arrive, /diagnostics
-    says OK, Ctrl-C ends every process cleanly."""
+    says OK, Ctrl-C ends every process cleanly. With ``idle_every:=5`` the same, and the
+    driver reports idle readings it held back (none without)."""
     _require_ros2()
     group = f"239.{random.randint(1, 254)}.{random.randint(1, 254)}.{random.randint(1, 254)}"
     port = 20000 + os.getpid() % 20000
+    held: list[int] = []
     _launch_until_contact(
         workspace,
         ros_context,
         f"use_simulator:=true scenario:=press interface:=udp_multicast channel:={group}:{port} "
-        f"bundles:={bundles}",
+        f"bundles:={bundles}" + (f" idle_every:={idle_every}" if idle_every else ""),
+        held=held if idle_every else None,
     )
+    if idle_every:
+        assert max(held) > 0, held
 
 
 def test_ros2_launch_with_the_simulator_and_nothing_else_given(
@@ -347,10 +353,13 @@ def test_ros2_launch_without_rviz2_says_so_and_runs_the_rest(
     assert not launch.leftovers(), f"processes left running:\n{launch.output}"
 
 
-def _launch_until_contact(workspace: Path, ros_context: object, arguments: str) -> str:
+def _launch_until_contact(
+    workspace: Path, ros_context: object, arguments: str, held: list[int] | None = None
+) -> str:
     """``ros2 launch tactile_contact skin.launch.py ARGUMENTS`` until contacts with a force
-    arrive and /diagnostics says OK for the driver and the reconstruction; then Ctrl-C, which
-    must end every process cleanly (none left behind). Its output."""
+    arrive and /diagnostics says OK for the driver and the reconstruction (and with ``held``,
+    until the driver reports idle readings held back: each report appended to it); then
+    Ctrl-C, which must end every process cleanly (none left behind). Its output."""
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
@@ -369,6 +378,8 @@ def _launch_until_contact(workspace: Path, ros_context: object, arguments: str) 
             levels[s.name] = (
                 int.from_bytes(s.level, "little") if isinstance(s.level, bytes) else int(s.level)
             )
+            if held is not None:
+                held.extend(int(kv.value) for kv in s.values if kv.key == "idle_readings_held")
 
     # The contact stream is sensor data (best effort); a reliable reader would get nothing.
     node.create_subscription(
@@ -388,7 +399,9 @@ def _launch_until_contact(workspace: Path, ros_context: object, arguments: str) 
 
     try:
         end = time.monotonic() + 240.0  # (a busy 2-core machine: minutes to start)
-        while time.monotonic() < end and not (any(f > 0 for f in forces) and healthy()):
+        while time.monotonic() < end and not (
+            any(f > 0 for f in forces) and healthy() and (held is None or max(held, default=0))
+        ):
             executor.spin_once(timeout_sec=0.1)
             if launch.proc.poll() is not None:
                 break
