@@ -9,8 +9,10 @@ reading, and no TaxelArray is published before something subscribes to it.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -165,6 +167,34 @@ def _two_bus_layout(tmp_path: Path) -> Path:
     return path
 
 
+@contextlib.contextmanager
+def sending(channel: str, sims: dict[str, SkinSimulator], touch: dict[str, Any]) -> Iterator[None]:
+    """A thread sending every simulator's frames of a period together (as a board sends its
+    triangles) on the virtual bus ``channel`` every PERIOD_S, ``touch`` pressing the patches
+    it names (the others untouched), until the block ends."""
+    bus = can.Bus(interface="virtual", channel=channel)
+    stop = threading.Event()
+
+    def send() -> None:
+        k = 0
+        t0 = time.monotonic()
+        while not stop.is_set():
+            for name, sim in sims.items():
+                for m in sim.period(touch.get(name), k * PERIOD_S).messages:
+                    bus.send(m)
+            k += 1
+            stop.wait(max(0.0, t0 + k * PERIOD_S - time.monotonic()))
+
+    sender = threading.Thread(target=send, daemon=True)
+    sender.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        sender.join(2.0)
+        bus.shutdown()
+
+
 def _driver_and_batches(ros_context: object, params: dict, name: str) -> tuple[Any, Any, list]:
     """A SkinDriver with ``params``, and a node ``name`` collecting its TaxelBatches (read)."""
     from rclpy.node import Node
@@ -204,6 +234,7 @@ def test_every_reading_is_in_one_batch_and_taxel_arrays_only_for_subscribers(
     params = {"interface": "virtual", "channel": channel, "layout": str(LAYOUT)}
     params |= {"period_ms": 20, "calibration_samples": 2, "batch_window_ms": 5.0}
     node, listener, batches = _driver_and_batches(ros_context, params, "batch_listener")
+    stack = contextlib.ExitStack()
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
     executor.add_node(listener)
@@ -213,28 +244,11 @@ def test_every_reading_is_in_one_batch_and_taxel_arrays_only_for_subscribers(
         p.name: Indentation.press(None, 1.0, tuple(p.taxel_xy()[0]), start_s=0.2, ramp_s=0.1)
         for p in layout.patches
     }
-    bus = can.Bus(interface="virtual", channel=channel)
-    stop = threading.Event()
-    sent = {name: 0 for name in sims}
-
-    def send() -> None:
-        # both patches' frames of a period together, as a board sends its triangles
-        k = 0
-        t0 = time.monotonic()
-        while not stop.is_set():
-            for name, sim in sims.items():
-                for m in sim.period(touch[name], k * PERIOD_S).messages:
-                    bus.send(m)
-                sent[name] += 1
-            k += 1
-            stop.wait(max(0.0, t0 + k * PERIOD_S - time.monotonic()))
-
-    sender = threading.Thread(target=send, daemon=True)
     try:
         assert spin_until(
             executor, lambda: listener.count_publishers("taxel_batches") > 0, timeout_s=10.0
         )
-        sender.start()
+        stack.enter_context(sending(channel, sims, touch))
         assert spin_until(executor, lambda: len(batches) >= 40, timeout_s=20.0)
         # 1. every reading once: no patch twice in a batch, and per patch one reading a period
         sizes = {p.name: 12 * len(p.modules) for p in layout.patches}
@@ -275,13 +289,10 @@ def test_every_reading_is_in_one_batch_and_taxel_arrays_only_for_subscribers(
                 matched += 1
         assert matched >= 5
     finally:
-        stop.set()
-        if sender.is_alive():
-            sender.join(2.0)
+        stack.close()
         executor.shutdown()
         node.destroy_node()
         listener.destroy_node()
-        bus.shutdown()
 
 
 @pytest.mark.ros

@@ -10,11 +10,9 @@ batches one period in five, the pressed one's every period.
 
 from __future__ import annotations
 
-import threading
-import time
+import contextlib
 from typing import Any
 
-import can
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -176,7 +174,7 @@ def test_the_driver_sends_an_untouched_patch_every_fifth_period(ros_context: obj
     from tactile_contact.model.layout import load_layout
     from tactile_contact.sim.simulator import Indentation
     from test.rosutil import spin_until
-    from test.test_driver_batches import LAYOUT, PERIOD_S, _driver_and_batches, _simulator
+    from test.test_driver_batches import LAYOUT, PERIOD_S, _driver_and_batches, _simulator, sending
 
     channel = "idle_gate"
     params = {"interface": "virtual", "channel": channel, "layout": str(LAYOUT)}
@@ -194,25 +192,12 @@ def test_the_driver_sends_an_untouched_patch_every_fifth_period(ros_context: obj
             None, 1.0, tuple(palm.taxel_xy()[0]), start_s=0.4, ramp_s=0.1, hold_s=60.0
         )
     }
-    bus = can.Bus(interface="virtual", channel=channel)
-    stop = threading.Event()
-
-    def send() -> None:
-        k = 0
-        t0 = time.monotonic()
-        while not stop.is_set():
-            for name, sim in sims.items():
-                for m in sim.period(touch.get(name), k * PERIOD_S).messages:
-                    bus.send(m)
-            k += 1
-            stop.wait(max(0.0, t0 + k * PERIOD_S - time.monotonic()))
-
-    sender = threading.Thread(target=send, daemon=True)
+    stack = contextlib.ExitStack()
     try:
         assert spin_until(
             executor, lambda: listener.count_publishers("taxel_batches") > 0, timeout_s=10.0
         )
-        sender.start()
+        stack.enter_context(sending(channel, sims, touch))
         stamps: dict[str, list[int]] = {"palm": [], "forearm": []}
 
         def enough() -> bool:
@@ -236,10 +221,7 @@ def test_the_driver_sends_an_untouched_patch_every_fifth_period(ros_context: obj
         assert np.all((forearm_gaps > 4.5) & (forearm_gaps < 5.5)), forearm_gaps
         assert node._gate is not None and node._gate.held >= 4 * 9
     finally:
-        stop.set()
-        if sender.is_alive():
-            sender.join(2.0)
+        stack.close()
         executor.shutdown()
         node.destroy_node()
         listener.destroy_node()
-        bus.shutdown()

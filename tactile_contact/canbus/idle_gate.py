@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -59,7 +59,7 @@ class _State:
     quiet: bool = False
     status: bytes = b""
     since: int = 0
-    sent: bool = field(default=False)
+    sent: bool = False
 
 
 class IdleGate:
