@@ -546,12 +546,20 @@ def test_any_reading_gives_a_finite_nonnegative_published_summary(
         assert result.traction.min() >= -1e-9 * max(1.0, np.abs(result.traction).max())
 
 
-def test_diagnostics_are_taken_one_patch_a_step_and_published_whole(
-    ros_context: object, bundles: Path, tmp_path: Path
+@pytest.mark.parametrize("per_step", [1, 6])
+def test_diagnostics_are_taken_a_few_patches_a_step_and_published_whole(
+    ros_context: object,
+    bundles: Path,
+    tmp_path: Path,
+    per_step: int,
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """A period's diagnostics work is spread (it held every frame behind it for ≈ 10 ms at
-    24 patches): the bundles are watched in one step, each patch's status taken in another,
-    and the array that goes out once a period holds every patch."""
+    24 patches): the bundles are watched in one step, DIAG_PATCHES_PER_STEP patches' statuses
+    taken in each of the next, and the array that goes out once a period holds every patch."""
+    import tactile_contact.ros.contact_reconstruction as cr
+
+    monkeypatch.setattr(cr, "DIAG_PATCHES_PER_STEP", per_step)
     shutil.copytree(bundles / "hexagon", tmp_path / "hexagon")
     _second_patch(bundles, tmp_path)
     rig = TwoPatchRig(ros_context, tmp_path)
@@ -566,12 +574,14 @@ def test_diagnostics_are_taken_one_patch_a_step_and_published_whole(
 
         pipe.diagnostics = counted
     n = len(rig.diags)
-    per_step = []
-    for _ in range(3 * (len(node.pipelines) + 1)):
+    patches = len(node.pipelines)
+    steps = -(-patches // per_step) + 1  # (a period's: the bundles, then the patches)
+    counts = []
+    for _ in range(3 * steps):
         before = len(taken)
         node.diagnostics_step()
-        per_step.append(len(taken) - before)
-    assert max(per_step) == 1 and sum(per_step) == 3 * len(node.pipelines), per_step
+        counts.append(len(taken) - before)
+    assert counts == [0, *[min(per_step, patches)] * (steps - 1)] * 3, counts
     assert spin_until(rig.executor, lambda: len(rig.diags) >= n + 3)
     for array in rig.diags[n:]:
         names = {s.name for s in array.status}

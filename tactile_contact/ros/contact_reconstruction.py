@@ -68,6 +68,12 @@ from tactile_contact.ros.patch_pipeline import (  # noqa: F401  (their old home:
 from tactile_contact.ros.worker_link import WorkerLink
 from tactile_contact.ros.workers import bus_filter, worker_patches
 
+#: Patches whose statuses one diagnostics step takes (≈ 90 µs each: with all 24 at once the
+#: frames arriving meanwhile waited ≈ 10 ms). Several a step, not one: each step is a timer
+#: callback, and rclpy's executor costs ≈ 85 µs per callback whatever it does
+#: (docs/bench/load.md, "Idle patches sent less often").
+DIAG_PATCHES_PER_STEP = 6
+
 PARAMETERS = (
     "bundles_dir",
     "layout",
@@ -262,12 +268,13 @@ class ContactReconstructionNode(Node):
             )
             self.get_logger().warning(self.load_errors["*"])
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
-        # One period's diagnostics work in steps, one patch a step: done at once for 24
-        # patches it took ≈ 10 ms, which every frame arriving meanwhile waited for (its p99
-        # latency). The array still goes out once a period, with every patch.
+        # One period's diagnostics work in steps of DIAG_PATCHES_PER_STEP patches: done at
+        # once for 24 patches it took ≈ 10 ms, which every frame arriving meanwhile waited
+        # for (its p99 latency). The array still goes out once a period, with every patch.
         self._diag_todo: list[str] = []
         self._diag_done: dict[str, Any] = {}
-        self.create_timer(period / (len(self.pipelines) + 1), self.diagnostics_step)
+        steps = -(-len(self.pipelines) // DIAG_PATCHES_PER_STEP) + 1
+        self.create_timer(period / steps, self.diagnostics_step)
         if self.link.worker_mode:  # (a lone node's array stays what it always was)
             self.create_timer(period, self._publish_worker_status)
 
@@ -395,19 +402,20 @@ class ContactReconstructionNode(Node):
 
     def diagnostics_step(self) -> None:
         """One step of the diagnostics period: first the bundles refused tried again, then
-        one patch per step, its bundle watched and its status taken; after the last, the
-        array published."""
+        DIAG_PATCHES_PER_STEP patches a step, each one's bundle watched and its status taken;
+        after the last, the array published."""
         if not self._diag_todo:
             self._watching(self.retry_refused)
             self._diag_todo = [n for n in reversed(self.pipelines) if self._reports(n)]
             if self._diag_todo:
                 return
         else:
-            name = self._diag_todo.pop()
-            pipe = self.pipelines.get(name)
-            if pipe is not None:
-                self._watching(lambda: self.watch_bundle(pipe))
-                self._diag_done[name] = self.pipelines[name].diagnostics()
+            for _ in range(min(DIAG_PATCHES_PER_STEP, len(self._diag_todo))):
+                name = self._diag_todo.pop()
+                pipe = self.pipelines.get(name)
+                if pipe is not None:
+                    self._watching(lambda pipe=pipe: self.watch_bundle(pipe))
+                    self._diag_done[name] = pipe.diagnostics()
             if self._diag_todo:
                 return
         self._publish_diagnostics(
