@@ -52,14 +52,14 @@ MEAN_GAIN = np.float32(0.25)
 @dataclass
 class _State:
     """A patch's running mean [F] and a scratch array, and its last reading sent: whether it
-    was quiet, its status flags, periods since."""
+    was quiet (False until one is sent: the first reading always goes out), its status flags,
+    periods since."""
 
     mean: np.ndarray
     step: np.ndarray
     quiet: bool = False
     status: bytes = b""
     since: int = 0
-    sent: bool = False
 
 
 class IdleGate:
@@ -118,8 +118,7 @@ class IdleGate:
         # Held back only while quiet with the status of the last sent, which was quiet (so
         # nothing in it was in contact: the status flags need no look of their own).
         if (
-            st.sent
-            and st.quiet
+            st.quiet
             and st.since + 1 < self.every
             and settled
             and frame.status == st.status
@@ -130,7 +129,7 @@ class IdleGate:
             return False
         status = np.frombuffer(frame.status, dtype=np.uint8)
         st.quiet = settled and not (status & STATUS_CONTACT).any() and self._within(dc, limit)
-        st.status, st.since, st.sent = bytes(frame.status), 0, True
+        st.status, st.since = bytes(frame.status), 0
         self.passed += 1
         return True
 
