@@ -11,6 +11,7 @@ batches one period in five, the pressed one's every period.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -19,7 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tactile_contact.canbus.baseline import STATUS_CONTACT, STATUS_STALE
-from tactile_contact.canbus.idle_gate import IdleGate
+from tactile_contact.canbus.idle_gate import RELEASE_READINGS, IdleGate
 from tactile_contact.canbus.stream import PatchFrame
 
 COUNT = 1e-14  # ΔC of one 8-bit count in these tests [F]
@@ -51,10 +52,10 @@ def test_an_untouched_patch_goes_out_every_nth_period_a_press_every_period() -> 
     # a press: at once, every period, whatever came before
     assert all(gate.passes(_frame("a", [2.5, 0.0])) for _ in range(4))
     # its release goes out, so do the readings after it until the running mean has settled
-    # (1.87 counts → 1.40 → 1.05 → 0.79, within half of idle_counts) and the first settled
-    # one, then every fifth again
-    after = [gate.passes(_frame("a", [0.0, 0.0])) for _ in range(13)]
-    assert after == [True] * 3 + [False] * 4 + [True] + [False] * 4 + [True]
+    # (1.87 counts → 1.40 → 1.05 → 0.79, within half of idle_counts) and the first three
+    # settled ones (RELEASE_READINGS: a release survives lost batches), then every fifth again
+    after = [gate.passes(_frame("a", [0.0, 0.0])) for _ in range(15)]
+    assert after == [True] * 5 + [False] * 4 + [True] + [False] * 4 + [True]
 
 
 def test_a_light_press_goes_out_once_its_running_mean_shows_it() -> None:
@@ -80,7 +81,8 @@ def test_contact_flags_status_changes_and_nan_always_go_out() -> None:
     assert gate.passes(_frame("a", [0.0, 0.0]))
     assert not gate.passes(_frame("a", [0.0, 0.0]))
     assert gate.passes(_frame("a", [0.0, 0.0], [0, STATUS_CONTACT]))  # flagged in contact
-    assert gate.passes(_frame("a", [0.0, 0.0], [0, STATUS_STALE]))  # the first quiet after
+    # the first three quiet after it (its release)
+    assert all(gate.passes(_frame("a", [0.0, 0.0], [0, STATUS_STALE])) for _ in range(3))
     assert not gate.passes(_frame("a", [0.0, 0.0], [0, STATUS_STALE]))
     assert gate.passes(_frame("a", [0.0, 0.0]))  # its status changed back
     assert gate.passes(_frame("a", [0.0, float("nan")]))  # a NaN reading is never quiet
@@ -88,6 +90,43 @@ def test_contact_flags_status_changes_and_nan_always_go_out() -> None:
     assert gate.passes(_frame("c", [0.0, 0.0])) and gate.passes(_frame("c", [0.0, 0.0]))
     gate.forget()  # (a tare) the next reading of each patch goes out
     assert gate.passes(_frame("b", [0.0, 0.0]))
+
+
+def test_a_reading_made_before_a_tare_changes_nothing_when_it_comes_after() -> None:
+    """Readings carry their stream's tare count: the first made after a tare goes out even
+    when a reading made before it (a batch window, a receive thread) reached the gate
+    first, and one made before that comes later goes out without resetting the patch."""
+    gate = IdleGate(10, 3.0, {"a": COUNT})
+
+    def tared(counts: list[float], tares: int) -> PatchFrame:
+        return dataclasses.replace(_frame("a", counts), tares=tares)
+
+    assert gate.passes(tared([1.4, 0.0], 0))
+    assert not gate.passes(tared([1.4, 0.0], 0))
+    assert gate.passes(tared([0.0, 0.0], 1))  # the tared state, at once
+    assert not gate.passes(tared([0.0, 0.0], 1))
+    assert gate.passes(tared([1.4, 0.0], 0))  # late, from before the tare: out, unused
+    # the keep-alive: the tenth of the tared state's readings after its last sent
+    assert not any(gate.passes(tared([0.0, 0.0], 1)) for _ in range(8))
+    assert gate.passes(tared([0.0, 0.0], 1))
+
+
+def test_skin_stream_readings_carry_its_tare_count() -> None:
+    from tactile_contact.canbus.stream import SkinStream
+    from tactile_contact.model.layout import load_layout
+    from tactile_contact.sim.simulator import simulator_for_patch
+    from test.test_driver_batches import ROOT
+
+    patch = load_layout(ROOT / "config" / "hexagon_patch.yaml").patches[0]
+    stream = SkinStream([patch], period_s=0.02)
+    sim = simulator_for_patch(patch, period_s=0.02, seed=3)
+    tares = []
+    for k in range(60):
+        if k == 50:
+            assert stream.tare()[0] == [patch.name]
+        for m in sim.period(None, k * 0.02).messages:
+            tares += [f.tares for f in stream.feed(m, k * 0.02)]
+    assert len(tares) > 40 and tares[0] == 0 and tares[-1] == 1 and sorted(tares) == tares
 
 
 def test_bad_settings_are_refused_with_their_name() -> None:
@@ -112,19 +151,23 @@ def test_bad_settings_are_refused_with_their_name() -> None:
     ),
 )
 def test_rules_on_any_sequence(every: int, readings: list) -> None:
-    """Whatever the readings: a touched one always goes out; so does the first untouched one
-    after a touched one or a status change; of untouched ones with the same status, at most
-    every−1 in a row are held back; and passed + held counts every reading."""
+    """Whatever the readings: a touched one always goes out; so do the RELEASE_READINGS
+    after a touched one, and the first after a status change; of untouched ones with the same
+    status, at most every−1 in a row are held back; and passed + held counts every reading."""
     gate = IdleGate(every, 2.0, {"a": COUNT, "b": COUNT})
     last: dict[str, tuple[bool, bytes]] = {}
+    since_touched = {"a": RELEASE_READINGS + 1, "b": RELEASE_READINGS + 1}
     held_run = {"a": 0, "b": 0}
     for patch, counts, flag in readings:
         f = _frame(patch, counts, [flag, 0, 0])
         touched = flag == STATUS_CONTACT or max(abs(c) for c in counts) > 2.0
         sent = gate.passes(f)
         before = last.get(patch)
-        if touched or before is None or before[0] or before[1] != f.status:
+        if touched or before is None or before[1] != f.status:
             assert sent
+        if since_touched[patch] < RELEASE_READINGS:
+            assert sent, "a release reading held back"
+        since_touched[patch] = 0 if touched else since_touched[patch] + 1
         if sent:
             held_run[patch] = 0
             last[patch] = (touched, f.status)

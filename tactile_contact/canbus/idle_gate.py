@@ -23,7 +23,11 @@ last few is not (a steady 2 counts crosses 1.5 after 5 readings, 3 counts after 
 A reading goes out when
 
 - it is not quiet (a press at once, at full rate, for as long as it lasts);
-- the patch's last reading sent was not quiet (the first quiet one after a press: its release);
+- it is one of the first :data:`RELEASE_READINGS` quiet ones after a reading that was not (the
+  release: the batches are best-effort, and a release lost would leave the worker on the
+  press until the keep-alive);
+- it is the patch's first since a tare (:attr:`PatchFrame.tares` grew: the worker must see the
+  new state; a reading made before the tare that comes later goes out and changes nothing);
 - or ``every`` periods have passed since the patch's last reading sent (the keep-alive).
 
 What a worker loses with it: a press within the thresholds on every taxel (below ≈ 1.5 counts
@@ -47,17 +51,21 @@ from tactile_contact.canbus.stream import PatchFrame
 #: Weight of the newest reading in a taxel's running mean: the mean of about the last
 #: 2/MEAN_GAIN − 1 = 7 readings (its noise is √(g/(2−g)) ≈ 0.38 of one reading's).
 MEAN_GAIN = np.float32(0.25)
+#: Quiet readings sent after one that was not: a release survives the loss of all but one.
+RELEASE_READINGS = 3
 
 
 @dataclass
 class _State:
-    """A patch's running mean [F] and a scratch array, and its last reading sent: whether it
-    was quiet (False until one is sent: the first reading always goes out), its status flags,
-    periods since."""
+    """A patch's running mean [F] and a scratch array; the quiet readings still to send
+    (:data:`RELEASE_READINGS` after one that was not; 1 at first: the first reading always
+    goes out), the status flags of the last reading sent, periods since, and the tares its
+    readings were made after."""
 
     mean: np.ndarray
     step: np.ndarray
-    quiet: bool = False
+    tares: int
+    release: int = 1
     status: bytes = b""
     since: int = 0
 
@@ -104,9 +112,12 @@ class IdleGate:
             return True
         dc = frame.delta_c
         st = self._state.get(frame.patch)
-        if st is None or st.mean.shape != dc.shape:
+        if st is None or st.mean.shape != dc.shape or frame.tares > st.tares:
             zeros = np.zeros(dc.shape, np.float32)
-            st = self._state[frame.patch] = _State(zeros, zeros.copy())
+            st = self._state[frame.patch] = _State(zeros, zeros.copy(), frame.tares)
+        elif frame.tares < st.tares:
+            self.passed += 1  # made before a tare whose readings were seen already
+            return True
         mean, step = st.mean, st.step
         # mean += MEAN_GAIN · (dc − mean), in place (the driver pays this per reading)
         np.subtract(dc, mean, out=step)
@@ -118,7 +129,7 @@ class IdleGate:
         # Held back only while quiet with the status of the last sent, which was quiet (so
         # nothing in it was in contact: the status flags need no look of their own).
         if (
-            st.quiet
+            not st.release
             and st.since + 1 < self.every
             and settled
             and frame.status == st.status
@@ -128,14 +139,15 @@ class IdleGate:
             self.held += 1
             return False
         status = np.frombuffer(frame.status, dtype=np.uint8)
-        st.quiet = settled and not (status & STATUS_CONTACT).any() and self._within(dc, limit)
+        quiet = settled and not (status & STATUS_CONTACT).any() and self._within(dc, limit)
+        st.release = max(st.release - 1, 0) if quiet else RELEASE_READINGS
         st.status, st.since = bytes(frame.status), 0
         self.passed += 1
         return True
 
     def forget(self, patch: str | None = None) -> None:
-        """Start ``patch`` (None: every patch) afresh: its next reading goes out (after a
-        tare: the worker must see the first reading of the new state)."""
+        """Start ``patch`` (None: every patch) afresh: its next reading goes out. (A tare
+        needs no call: its readings carry it, :attr:`PatchFrame.tares`.)"""
         if patch is None:
             self._state.clear()
         else:

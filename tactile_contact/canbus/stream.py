@@ -71,6 +71,10 @@ class PatchFrame:
     delta_c: NDArray[np.float32]  # [F]
     raw: bytes
     status: bytes
+    #: Tares of its stream before this reading was made: a reading made before a tare may
+    #: still be on its way out after it (in a batch window, a receive thread), and whoever
+    #: compares readings over time (the driver's idle gate) must tell it from the new state.
+    tares: int = 0
 
 
 @dataclass(frozen=True)
@@ -164,6 +168,8 @@ class SkinStream:
         self.module_timeout_s = module_timeout_s
         self.period_s = period_s
         self.id_classes = tuple(id_classes)
+        #: Tares so far (:attr:`PatchFrame.tares` of the readings made now).
+        self.tares = 0
         self._patches: list[_PatchState] = []
         self._where: dict[tuple[int, int], tuple[_PatchState, int]] = {}
         for pl in patches:
@@ -406,13 +412,16 @@ class SkinStream:
             delta_c=delta_c.astype(np.float32),
             raw=st.raw.tobytes(),
             status=status.tobytes(),
+            tares=self.tares,
         )
 
     def tare(self) -> tuple[list[str], list[str]]:
-        """Tare every patch: (patches tared, patches without any reading yet)."""
+        """Tare every patch: (patches tared, patches without any reading yet); readings made
+        from now on carry the new count in :attr:`PatchFrame.tares`."""
         done, missing = [], []
         for st in self._patches:
             (done if st.tracker.tare() else missing).append(st.layout.name)
+        self.tares += 1
         return done, missing
 
     # -- health ---------------------------------------------------------------------------

@@ -754,9 +754,7 @@ class SkinDriver(LifecycleNode):
                 d, m = link.stream.tare()
                 done += d
                 missing += m
-        if self._gate is not None:
-            with self._batch_lock:  # (the tared readings go out, whatever they read)
-                self._gate.forget()
+        # (the idle gate sends each patch's first tared reading: they carry the tare count)
         response.success = not missing
         response.message = f"tared patches {done}" + (
             f"; no reading yet from {missing}" if missing else ""
