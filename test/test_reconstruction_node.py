@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -270,6 +271,85 @@ def test_a_broken_bundle_is_refused_and_the_others_still_served(
     rig.close()
 
 
+def test_diagnostics_go_out_once_a_period_whatever_loads_later(
+    ros_context: object, bundles: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The steps of a diagnostics period are counted from the patches given, not those
+    loaded at start: a bundle refused at start that loads later is taken within the same
+    number of steps (the array still once a period, both patches in it), and a period
+    with no patch to report publishes once, not at every step."""
+    import tactile_contact.ros.contact_reconstruction as cr
+
+    monkeypatch.setattr(cr, "DIAG_PATCHES_PER_STEP", 1)
+    shutil.copytree(bundles / "hexagon", tmp_path / "hexagon")
+    _second_patch(bundles, tmp_path)
+    manifest = tmp_path / "forearm" / "manifest.json"
+    good = manifest.read_text()
+    manifest.write_text(good.replace('"schema_version": ', '"schema_version": 99, "was": '))
+    rig = Rig(ros_context, tmp_path, diagnostics_period=0.1)
+    node = rig.node
+    assert set(node.pipelines) == {"hexagon"} and "forearm" in node.load_errors
+    published: list[list[str]] = []
+    monkeypatch.setattr(
+        node, "_publish_diagnostics", lambda st: published.append(sorted(s.name for s in st))
+    )
+    node._diag_tick = 0  # (a period's start; the rig's spinning may have stepped it)
+    for _ in range(3 * 2):  # 2 patches given: steps of 1, 3 a period
+        node.diagnostics_step()
+    assert len(published) == 2, published
+    manifest.write_text(good)  # the bundle mended: loaded on a thread, taken by a step
+    deadline = time.monotonic() + 30.0
+    while "forearm" not in node.pipelines and time.monotonic() < deadline:
+        node.diagnostics_step()
+        time.sleep(0.01)
+    assert set(node.pipelines) == {"hexagon", "forearm"}
+    while node._diag_tick:  # (to the next period's start)
+        node.diagnostics_step()
+    del published[:]
+    for _ in range(3 * 2):
+        node.diagnostics_step()
+    assert len(published) == 2, published
+    assert published[-1] == [
+        "contact_reconstruction: forearm",
+        "contact_reconstruction: hexagon",
+    ]
+    node.pipelines.clear()  # nothing to report: still one array a period
+    for _ in range(3 * 3):
+        node.diagnostics_step()
+    assert len(published) == 5, published
+    rig.close()
+
+
+def test_a_worker_names_a_patch_the_layout_does_not_have(
+    ros_context: object, bundles: Path
+) -> None:
+    """Workers split the patches of the layout; a name in ``patches`` that the layout does
+    not have (a typo) is in no worker's share: worker 0 reports it, the others serve on."""
+    from rclpy.parameter import Parameter
+
+    from tactile_contact.ros.contact_reconstruction import ContactReconstructionNode
+
+    nodes = [
+        ContactReconstructionNode(
+            context=ros_context,
+            parameter_overrides=[
+                Parameter("bundles_dir", value=str(bundles)),
+                Parameter("layout", value=str(LAYOUT)),
+                Parameter("patches", value=["hexagon", "hexagn"]),
+                Parameter("worker_index", value=index),
+                Parameter("worker_count", value=2),
+            ],
+        )
+        for index in (0, 1)
+    ]
+    assert "not in the layout" in nodes[0].load_errors["hexagn"]
+    assert "hexagn" not in nodes[1].load_errors
+    assert {n for node in nodes for n in node.pipelines} == {"hexagon"}
+    assert any(line.startswith("hexagn: not served") for line in nodes[0].summary())
+    for node in nodes:
+        node.destroy_node()
+
+
 # -- hostile input, a second patch served throughout, bundles changed under the node ---------
 def _second_patch(bundles: Path, out: Path, name: str = "forearm") -> None:
     """A copy of the hexagon bundle posing as another patch (its manifest renamed; the layout
@@ -452,6 +532,33 @@ def test_bundles_deleted_or_replaced_while_running(
     rig.close()
 
 
+def test_a_bundle_replaced_while_running_loads_off_the_executor(
+    ros_context: object, bundles: Path, tmp_path: Path
+) -> None:
+    """The diagnostics steps load a replaced bundle on a thread of their own (a robot's
+    takes 0.7–1 s: on the executor it held every frame and the worker's heartbeat past the
+    monitor's 0.5 s); the old one serves until a later step swaps the new one in."""
+    folder = tmp_path / "bundles"
+    folder.mkdir()
+    shutil.copytree(bundles / "hexagon", folder / "hexagon")
+    rig = Rig(ros_context, folder)
+    node, pipe = rig.node, rig.node.pipelines["hexagon"]
+    old = pipe.recon
+    shutil.copytree(bundles / "hexagon", tmp_path / "new")
+    shutil.rmtree(folder / "hexagon")
+    (tmp_path / "new").rename(folder / "hexagon")
+    started = time.perf_counter()
+    node.watch_bundle(pipe, wait=False)
+    assert time.perf_counter() - started < 0.05, "the load ran on the caller's thread"
+    assert pipe.reloads == 0 and pipe.recon is old
+    deadline = time.monotonic() + 30.0
+    while pipe.reloads == 0 and time.monotonic() < deadline:
+        node.diagnostics_step()
+        time.sleep(0.01)
+    assert pipe.reloads == 1 and pipe.recon is not old and pipe.bundle_problem == ""
+    rig.close()
+
+
 def test_a_bundles_signature_changes_with_each_way_it_is_changed(tmp_path: Path) -> None:
     """bundle_signature alone (the node test above runs it through the node): a file
     rewritten in place, a file replaced, the folder replaced, a file added, the folder
@@ -575,6 +682,7 @@ def test_diagnostics_are_taken_a_few_patches_a_step_and_published_whole(
         pipe.diagnostics = counted
     n = len(rig.diags)
     patches = len(node.pipelines)
+    node._diag_tick = 0  # (a period's start; the rig's spinning may have stepped it)
     steps = -(-patches // per_step) + 1  # (a period's: the bundles, then the patches)
     counts = []
     for _ in range(3 * steps):

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import os
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -227,9 +228,19 @@ class ContactReconstructionNode(Node):
         self.load_errors: dict[str, str] = {}
         self.pipelines: dict[str, PatchPipeline] = {}
         self._refused: dict[Path, tuple] = {}  # bundle → signature of the refused version
+        self._loader: ThreadPoolExecutor | None = None  # bundles changed on disk, loaded
+        self._loads: dict[Path, tuple[tuple, Future]] = {}  # bundle → (signature, its load)
         self._paths = self._bundle_paths(requested)
         counts, buses = self._sizes_and_buses()
         if worker_count:
+            # A name the layout does not have is in no worker's share: said (by worker 0),
+            # not dropped in silence.
+            for name in sorted(set(self._paths) - set(counts)) if worker_index == 0 else ():
+                self.load_errors[name] = (
+                    f"patch {name!r} (parameter patches) is not in the layout {self.layout}: "
+                    "no worker serves it"
+                )
+                self.get_logger().error(f"patch {name}: {self.load_errors[name]}")
             mine = worker_patches(counts, worker_index, worker_count, buses)
             self._paths = {name: path for name, path in self._paths.items() if name in mine}
             self.get_logger().info(
@@ -271,10 +282,13 @@ class ContactReconstructionNode(Node):
         # One period's diagnostics work in steps of DIAG_PATCHES_PER_STEP patches: done at
         # once for 24 patches it took ≈ 10 ms, which every frame arriving meanwhile waited
         # for (its p99 latency). The array still goes out once a period, with every patch.
+        # The steps are counted from the patches given (bundles refused now may load later).
         self._diag_todo: list[str] = []
         self._diag_done: dict[str, Any] = {}
-        steps = -(-len(self.pipelines) // DIAG_PATCHES_PER_STEP) + 1
-        self.create_timer(period / steps, self.diagnostics_step)
+        self._diag_steps = -(-len(self._paths) // DIAG_PATCHES_PER_STEP) + 1
+        self._diag_tick = 0
+        self._diag_per_step = DIAG_PATCHES_PER_STEP
+        self.create_timer(period / self._diag_steps, self.diagnostics_step)
         if self.link.worker_mode:  # (a lone node's array stays what it always was)
             self.create_timer(period, self._publish_worker_status)
 
@@ -295,12 +309,18 @@ class ContactReconstructionNode(Node):
             layout = load_layout(self.layout)
             counts = {p.name: len(p.taxel_ids()) for p in layout.patches if p.name in self._paths}
             return counts, {p.name: p.bus for p in layout.patches}
-        counts = {}
+        counts, unread = {}, []
         for name, path in self._paths.items():
             try:
                 counts[name] = int(read_manifest(path)["arrays"]["taxel_ids"]["shape"][0]) or 1
             except Exception:
-                counts[name] = 1
+                counts[name], unread = 1, [*unread, name]
+        if unread and self.get_parameter("worker_count").value:
+            self.get_logger().warning(
+                f"worker split without a layout, and the manifests of {unread} unreadable "
+                "(counted as 1 taxel): a worker that reads them splits differently and a patch "
+                "may go unserved; give every worker the same `layout`"
+            )
         return counts, {}
 
     def build_command(self) -> str:
@@ -345,10 +365,36 @@ class ContactReconstructionNode(Node):
             self.watch_bundle(pipe)
         self.retry_refused()
 
-    def watch_bundle(self, pipe: PatchPipeline) -> None:
+    def _load(self, path: Path, sig: tuple, wait: bool) -> Reconstructor | Exception | None:
+        """The bundle at ``path`` (of signature ``sig``) loaded: its Reconstructor, or the
+        exception that refused it. ``wait`` False: loaded on a thread of its own, None until
+        done (a robot's 240-taxel bundle takes 0.7–1 s to load and warm up: on the executor
+        it held every frame of the worker, and its heartbeat past the monitor's 0.5 s)."""
+        if wait:
+            try:
+                return load_reconstructor(path, self.follow_contacts, self.fuse_frames)
+            except Exception as exc:
+                return exc
+        pending = self._loads.get(path)
+        if pending is None or pending[0] != sig:  # (changed again while loading: anew)
+            if self._loader is None:
+                self._loader = ThreadPoolExecutor(1, thread_name_prefix="bundle_load")
+            job = self._loader.submit(
+                load_reconstructor, path, self.follow_contacts, self.fuse_frames
+            )
+            self._loads[path] = (sig, job)
+            return None
+        if not pending[1].done():
+            return None
+        del self._loads[path]
+        exc = pending[1].exception()
+        return exc if isinstance(exc, Exception) else pending[1].result()
+
+    def watch_bundle(self, pipe: PatchPipeline, wait: bool = True) -> None:
         """:meth:`watch_bundles` for one served patch's bundle (≈ 0.1 ms of stat calls; the
         diagnostics steps take one patch's at a time: all 34 of the robot at once held
-        the frames behind them for ≈ 4.5 ms)."""
+        the frames behind them for ≈ 4.5 ms). ``wait`` False: a changed bundle is loaded on
+        a thread and taken by a later call (the diagnostics steps')."""
         log = self.get_logger()
         sig = bundle_signature(pipe.bundle)
         if sig == pipe.signature or sig == self._refused.get(pipe.bundle):
@@ -360,8 +406,12 @@ class ContactReconstructionNode(Node):
                 )
                 log.warning(f"patch {pipe.name}: {pipe.bundle_problem}")
             return
+        recon = self._load(pipe.bundle, sig, wait)
+        if recon is None:
+            return
         try:
-            recon = load_reconstructor(pipe.bundle, self.follow_contacts, self.fuse_frames)
+            if isinstance(recon, Exception):
+                raise recon
             if recon.patch != pipe.name:
                 raise ValueError(f"it is now a bundle of patch {recon.patch!r}")
         except Exception as exc:
@@ -377,8 +427,9 @@ class ContactReconstructionNode(Node):
         self._refused.pop(pipe.bundle, None)
         log.info(f"patch {pipe.name}: bundle {pipe.bundle} replaced on disk; reloaded")
 
-    def retry_refused(self) -> None:
-        """The bundles refused at start, tried again when they changed on disk."""
+    def retry_refused(self, wait: bool = True) -> None:
+        """The bundles refused at start, tried again when they changed on disk (``wait``
+        False: as :meth:`watch_bundle`)."""
         log = self.get_logger()
         for name, path in self._paths.items():
             if name not in self.load_errors:
@@ -386,9 +437,11 @@ class ContactReconstructionNode(Node):
             sig = bundle_signature(path)
             if not sig or sig == self._refused.get(path):
                 continue
-            try:
-                recon = load_reconstructor(path, self.follow_contacts, self.fuse_frames)
-            except Exception as exc:
+            recon = self._load(path, sig, wait)
+            if recon is None:
+                continue
+            if isinstance(recon, Exception):
+                exc = recon
                 self._refused[path] = sig
                 self.load_errors[name] = self._unusable(path, exc)
                 log.error(f"patch {name}: {self.load_errors[name]}")
@@ -401,23 +454,32 @@ class ContactReconstructionNode(Node):
             log.info(f"patch {recon.patch}: bundle {path} now loads; serving it")
 
     def diagnostics_step(self) -> None:
-        """One step of the diagnostics period: first the bundles refused tried again, then
-        DIAG_PATCHES_PER_STEP patches a step, each one's bundle watched and its status taken;
-        after the last, the array published."""
-        if not self._diag_todo:
-            self._watching(self.retry_refused)
+        """One step of the diagnostics period (a period is a fixed number of steps): the
+        first tries the bundles refused again, the others take the patches' statuses
+        (DIAG_PATCHES_PER_STEP a step, more when more bundles loaded than the steps were
+        counted for), each one's bundle watched; the array goes out once a period, at the
+        step that took the last (at the first when there is none)."""
+        tick = self._diag_tick
+        self._diag_tick = (tick + 1) % self._diag_steps
+        if any(job.done() for _, job in self._loads.values()):
+            self._watching(self._take_loaded)
+        if tick == 0:
+            self._watching(lambda: self.retry_refused(wait=False))
             self._diag_todo = [n for n in reversed(self.pipelines) if self._reports(n)]
-            if self._diag_todo:
+            spread = max(self._diag_steps - 1, 1)
+            self._diag_per_step = max(DIAG_PATCHES_PER_STEP, -(-len(self._diag_todo) // spread))
+            if self._diag_todo and self._diag_steps > 1:
                 return
-        else:
-            for _ in range(min(DIAG_PATCHES_PER_STEP, len(self._diag_todo))):
-                name = self._diag_todo.pop()
-                pipe = self.pipelines.get(name)
-                if pipe is not None:
-                    self._watching(lambda pipe=pipe: self.watch_bundle(pipe))
-                    self._diag_done[name] = pipe.diagnostics()
-            if self._diag_todo:
-                return
+        elif not self._diag_todo:
+            return  # (this period's array went out)
+        for _ in range(min(self._diag_per_step, len(self._diag_todo))):
+            name = self._diag_todo.pop()
+            pipe = self.pipelines.get(name)
+            if pipe is not None:
+                self._watching(lambda pipe=pipe: self.watch_bundle(pipe, wait=False))
+                self._diag_done[name] = pipe.diagnostics()
+        if self._diag_todo:
+            return
         self._publish_diagnostics(
             [
                 self._diag_done[n]
@@ -425,6 +487,21 @@ class ContactReconstructionNode(Node):
                 if n in self._diag_done and self._reports(n)
             ]
         )
+
+    def _take_loaded(self) -> None:
+        """The bundles loaded on the loader's thread since the last step, put to use."""
+        by_bundle = {pipe.bundle: pipe for pipe in self.pipelines.values()}
+        for path, (_, job) in list(self._loads.items()):
+            if job.done() and path in by_bundle:
+                self.watch_bundle(by_bundle[path], wait=False)
+        if any(job.done() for _, job in self._loads.values()):
+            self.retry_refused(wait=False)
+
+    def destroy_node(self) -> None:
+        """The node's ROS entities, and a bundle load under way left to end on its own."""
+        if self._loader is not None:
+            self._loader.shutdown(wait=False, cancel_futures=True)
+        super().destroy_node()
 
     def _watching(self, watch: Any) -> None:
         """Run ``watch`` (a look at the bundles on disk); never raises into the executor."""
