@@ -14,6 +14,26 @@ from rclpy.executors import Executor
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def reconstruction_workers(context: object, count: int, **params: object) -> list:
+    """``count`` contact_reconstruction nodes in this process, worker 0 … count−1 of
+    ``count``, each with ``params`` as parameter overrides."""
+    from rclpy.parameter import Parameter
+
+    from tactile_contact.ros.contact_reconstruction import ContactReconstructionNode
+
+    return [
+        ContactReconstructionNode(
+            context=context,
+            parameter_overrides=[
+                *(Parameter(k, value=v) for k, v in params.items()),
+                Parameter("worker_index", value=index),
+                Parameter("worker_count", value=count),
+            ],
+        )
+        for index in range(count)
+    ]
+
+
 def spin_until(executor: Executor, done: Callable[[], bool], timeout_s: float = 10.0) -> bool:
     """Spin ``executor`` until ``done()`` is true or ``timeout_s`` passes; return ``done()``."""
     deadline = time.monotonic() + timeout_s

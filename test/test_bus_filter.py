@@ -79,7 +79,6 @@ def test_each_worker_reads_only_its_buses_batches(
 ) -> None:
     from rclpy.experimental import EventsExecutor
     from rclpy.node import Node
-    from rclpy.parameter import Parameter
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     from tactile_contact.model.layout import load_layout
@@ -87,23 +86,13 @@ def test_each_worker_reads_only_its_buses_batches(
     from tactile_contact.ros import contact_batches
     from tactile_contact.ros.cdr import read_contact_array
     from tactile_contact.ros.common import SENSOR_QOS
-    from tactile_contact.ros.contact_reconstruction import ContactReconstructionNode
+    from test.rosutil import reconstruction_workers
 
     layout, bundles = two_buses
     forearm, palm = load_layout(layout).patches
-    workers = [
-        ContactReconstructionNode(
-            context=ros_context,
-            parameter_overrides=[
-                Parameter("bundles_dir", value=str(bundles)),
-                Parameter("layout", value=str(layout)),
-                Parameter("input", value="batches"),
-                Parameter("worker_index", value=index),
-                Parameter("worker_count", value=2),
-            ],
-        )
-        for index in (0, 1)
-    ]
+    workers = reconstruction_workers(
+        ros_context, 2, bundles_dir=str(bundles), layout=str(layout), input="batches"
+    )
     other = Node("bus_filter_probe", context=ros_context)
     pub = other.create_publisher(TaxelBatch, contact_batches.BATCHES_TOPIC, SENSOR_QOS)
     rows: list[tuple[str, int]] = []

@@ -325,23 +325,10 @@ def test_a_worker_names_a_patch_the_layout_does_not_have(
 ) -> None:
     """Workers split the patches of the layout; a name in ``patches`` that the layout does
     not have (a typo) is in no worker's share: worker 0 reports it, the others serve on."""
-    from rclpy.parameter import Parameter
+    from test.rosutil import reconstruction_workers
 
-    from tactile_contact.ros.contact_reconstruction import ContactReconstructionNode
-
-    nodes = [
-        ContactReconstructionNode(
-            context=ros_context,
-            parameter_overrides=[
-                Parameter("bundles_dir", value=str(bundles)),
-                Parameter("layout", value=str(LAYOUT)),
-                Parameter("patches", value=["hexagon", "hexagn"]),
-                Parameter("worker_index", value=index),
-                Parameter("worker_count", value=2),
-            ],
-        )
-        for index in (0, 1)
-    ]
+    given = {"bundles_dir": str(bundles), "layout": str(LAYOUT), "patches": ["hexagon", "hexagn"]}
+    nodes = reconstruction_workers(ros_context, 2, **given)
     assert "not in the layout" in nodes[0].load_errors["hexagn"]
     assert "hexagn" not in nodes[1].load_errors
     assert {n for node in nodes for n in node.pipelines} == {"hexagon"}
