@@ -419,7 +419,7 @@ def main(argv: list[str] | None = None) -> int:
         "--accept-uncertain",
         action="store_true",
         help=f"write the bundle even when the presses pin the gain to worse than "
-        f"±{MAX_FORCE_SIGMA:.0%} (1 σ); the manifest keeps the uncertainties",
+        f"±{MAX_FORCE_SIGMA:.0%}% (1 σ); the manifest keeps the uncertainties",
     )
     args = ap.parse_args(argv)
     if args.jobs is not None and args.jobs < 1:
