@@ -291,6 +291,16 @@ def test_a_noise_array_edited_in_place_is_read_again(default, indentation):
         r.solve_deflection(weak, noise=sigma)
 
 
+@pytest.mark.parametrize("level", [1.0, 0.4, 1.28e-15, np.full(72, 2.0)])
+def test_a_noise_level_in_counts_or_farads_is_refused_naming_the_unit(default, level) -> None:
+    """``noise=`` is compression in metres: a level in counts (1.0: a metre of noise on a
+    2 mm layer, which read every press as noise) or in farads (femtometres) is refused."""
+    r, _ = default
+    with pytest.raises(ValueError, match=r"in metres.*counts or farads"):
+        r.solve(np.zeros(72), noise=level)
+    assert r.solve(np.zeros(72), noise=1e-9).total_force == 0.0  # (a tiny level is fine)
+
+
 def test_shape_errors(default):
     r, _ = default
     with pytest.raises(ValueError, match=r"delta_c must have shape \(72,\)"):

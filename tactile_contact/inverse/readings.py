@@ -20,6 +20,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from tactile_contact.model.sensor import EPSILON_0, delta_c_to_compression, value_count_farad
 
+#: Noise levels [m] ``noise=`` may give: a compression noise outside is a unit mistake (a
+#: level in counts reads as metres of noise, one in farads as femtometres), not a sensor.
+NOISE_RANGE_M = (1e-13, 1e-3)
+
 
 @dataclass(frozen=True)
 class Frame:
@@ -179,9 +183,11 @@ class ReadingModel:
         """(K,) noise [m] for this frame: ``noise`` (scalar or (K,)) or the default."""
         if noise is None:
             return self.default_noise
-        if isinstance(noise, float) and math.isfinite(noise) and noise > 0:
+        if isinstance(noise, float) and NOISE_RANGE_M[0] <= noise <= NOISE_RANGE_M[1]:
             # A constant level passed every frame: one array, so the detector keeps its filters.
-            if self._noise_cache is None or self._noise_cache[0] != noise:
+            # (the cache may hold an array a caller passed before: compare as floats only)
+            key = None if self._noise_cache is None else self._noise_cache[0]
+            if not (isinstance(key, float) and key == noise):
                 self._noise_cache = (noise, np.full(self.n_taxels, noise))
             return self._noise_cache[1]
         # The same array as last frame (a tracker replaces its array when it learns) was
@@ -192,6 +198,13 @@ class ReadingModel:
         s = np.broadcast_to(np.asarray(noise, dtype=np.float64), (self.n_taxels,))
         if not np.all(np.isfinite(s) & (s > 0)):
             raise ValueError(f"noise must be finite and > 0 m, shape () or ({self.n_taxels},)")
+        if not (NOISE_RANGE_M[0] <= s.min() and s.max() <= NOISE_RANGE_M[1]):
+            raise ValueError(
+                f"noise must be each taxel's compression noise in metres (a count of this "
+                f"sensor is ≈ {self.count_sigma * math.sqrt(6):.2g} m), within "
+                f"{NOISE_RANGE_M[0]:g}..{NOISE_RANGE_M[1]:g} m; got {s.min():.3g}..{s.max():.3g}"
+                " (counts or farads?)"
+            )
         if isinstance(noise, np.ndarray):
             self._noise_cache = (noise, s.copy())
             return self._noise_cache[1]
