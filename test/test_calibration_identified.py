@@ -26,6 +26,7 @@ from tactile_contact.model.layout import load_layout
 from tactile_contact.offline.calibrate import MAX_FORCE_SIGMA, Calibration
 from tactile_contact.offline.calibration_report import report, unidentified_message
 from tactile_contact.offline.fit_quality import ambiguous, uncertainty
+from tactile_contact.offline.presses import CalibrationError
 from test.presses_sim import random_presses
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -226,3 +227,14 @@ def test_refusal_names_the_two_fits_it_cannot_tell_apart():
     msg = unidentified_message(cal, MAX_FORCE_SIGMA)
     assert "Two fits" in msg and "gain 0.997" in msg and "gain 0.952" in msg
     assert "3.54%" in msg and "'indenter'" in msg and "--accept-uncertain" in msg
+
+
+def test_a_fit_no_layout_allows_is_refused_and_leaves_no_file(tmp_path):
+    """A gain of 0 (readings in the wrong unit, accepted as uncertain) makes a layout the
+    loader refuses: write_bundle says so and leaves neither the layout nor a bundle."""
+    from tactile_contact.offline.calibrate import write_bundle
+
+    cal = Calibration(0.0, 0.0, 1.0, 1e-7, 0.05, 0.3, 12, 100)
+    with pytest.raises(CalibrationError, match=r"no valid layout.*gain"):
+        write_bundle(LAYOUT, "hexagon", cal, tmp_path / "out", accept_uncertain=True)
+    assert not list((tmp_path / "out").rglob("*")), list((tmp_path / "out").rglob("*"))

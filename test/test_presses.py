@@ -51,6 +51,21 @@ def test_deflection_in_the_wrong_unit_names_the_likely_one(tmp_path, patch, scal
     assert other not in message, message
 
 
+def test_delta_c_in_farads_is_refused_as_not_counts(tmp_path, patch):
+    """ΔC of a press in farads (≈ 1e-14, what ``solve`` takes) where the file wants CDC
+    counts: a fit on it came back with a gain of 0 and a layout no loader allows."""
+    g = _good()
+    counts = np.abs(g.pop("deflection")) * 1e6  # a few counts a reading
+    g["delta_c"] = counts * 1.28e-15
+    message = _error(tmp_path, patch, g)
+    assert "'delta_c'" in message and "expected CDC counts" in message, message
+    assert "not farads" in message, message
+    g["delta_c"] = counts  # the same in counts: read
+    path = tmp_path / "counts.npz"
+    np.savez(path, **g)
+    assert load_presses(path, patch).deflection.shape == (10, 72)
+
+
 def test_a_short_force_array_is_blamed_on_force(tmp_path, patch):
     g = _good()
     g["force"] = g["force"][:8]

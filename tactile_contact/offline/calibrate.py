@@ -387,7 +387,19 @@ def write_bundle(
         f"# {layout_path.name} with the taxel response fitted by tactile-contact-calibrate\n"
         f"# ({cal.presses} presses, relative residual {cal.relative_residual:.4f}).\n"
     )
-    lay_out.write_text(header + yaml.safe_dump(new, sort_keys=False))
+    # Checked as a layout before it takes its name: a fit that no layout allows (a gain of 0
+    # from readings in the wrong unit) is refused, not left on disk.
+    staged = lay_out.with_name(lay_out.name + ".tmp")
+    staged.write_text(header + yaml.safe_dump(new, sort_keys=False))
+    try:
+        load_layout(staged)
+    except Exception as exc:
+        staged.unlink()
+        raise CalibrationError(
+            f"the fitted response makes no valid layout ({exc}); nothing written — check the "
+            "presses' units and indenters"
+        ) from exc
+    staged.replace(lay_out)
     patch = load_layout(lay_out).patch(patch_name)
     manifest, arrays = build_patch(patch)
     manifest["layout_source"] = str(lay_out.resolve())

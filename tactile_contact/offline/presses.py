@@ -149,6 +149,13 @@ def load_presses(path: str | Path, patch: PatchLayout) -> Presses:
 
         s = patch.sensor
         counts = d
+        top_counts = float(np.nanmax(np.abs(counts))) if np.isfinite(counts).any() else 0.0
+        if 0.0 < top_counts < 0.5:
+            # (no press reads under half a count on every taxel: ΔC in farads reads ~1e-14)
+            raise CalibrationError(
+                f"{p}: 'delta_c' up to {top_counts:g}: expected CDC counts (ΔC of the 8-bit "
+                "values × 2^shift), not farads"
+            )
         dc = counts * value_count_farad(s.farad_per_count, s.shift)
         d = delta_c_to_compression(
             np.where(np.isfinite(dc), dc, 0.0), patch.elastomer.thickness, s.epsilon_r, s.area
