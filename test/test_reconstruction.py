@@ -192,11 +192,37 @@ def test_delta_c_and_delta_entry_points_agree(default, indentation):
     r, _ = default
     delta, _ = indentation
     dc = compression_to_delta_c(delta, 2e-3, 4.37, np.pi * 4e-6)
-    # ΔC is read as the driver gives it (counts: the posterior over the quantisation valley);
-    # a deflection with a noise level passed is read the same way.
-    a, b = r.solve(dc), r.solve_deflection(delta, noise=r.default_noise)
-    np.testing.assert_allclose(a.traction, b.traction, rtol=1e-6, atol=1e-6 * b.peak_pressure)
-    assert a.total_force == pytest.approx(b.total_force, rel=1e-6)
+    # With a noise level both read their input as counts (the posterior over the
+    # quantisation valley); without, this exact ΔC (a model's, off the count lattice, which
+    # its contact explains to far within the 8-bit noise) is read as precise, as its
+    # compressions are.
+    for noise in (r.default_noise, None):
+        a, b = r.solve(dc, noise=noise), r.solve_deflection(delta, noise=noise)
+        np.testing.assert_allclose(a.traction, b.traction, rtol=1e-6, atol=1e-6 * b.peak_pressure)
+        assert a.total_force == pytest.approx(b.total_force, rel=1e-6)
+
+
+def test_exact_delta_c_is_read_as_precise_and_8_bit_readings_as_counts(default, indentation):
+    """``solve`` without ``noise=``: a model's exact ΔC comes back as the press (read as
+    counts, the posterior spread it along the valley), and the same press as 8-bit readings
+    with baselines off the lattice (a driver's) still takes the counts' way."""
+    r, _ = default
+    delta, _ = indentation
+    dc = compression_to_delta_c(delta, 2e-3, 4.37, np.pi * 4e-6)
+    exact, precise = r.solve(dc), r.solve_deflection(delta)
+    assert exact.total_force == pytest.approx(precise.total_force, rel=1e-9)
+    from tactile_contact.inverse.readings import Frame
+
+    rng = np.random.default_rng(3)
+    lsb = r.readings.lsb
+    rest = rng.uniform(0.0, 1.0, 72)
+    baseline = np.rint(rest + rng.normal(0.0, 0.3, (20, 72))).mean(axis=0)
+    driver = (np.rint(rest + dc / lsb + rng.normal(0.0, 0.3, 72)) - baseline) * lsb
+    d, ok = r.readings.from_delta_c(driver, None)
+    assert not r.readings.on_count_lattice(d, ok)
+    as_counts = r._solve(Frame(d, ok, r.default_noise, estimate=True), True, True)
+    got = r.solve(driver)
+    assert got.in_contact and got.total_force == as_counts.total_force
 
 
 def test_invalid_taxels_are_ignored(default, indentation):

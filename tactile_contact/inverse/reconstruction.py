@@ -48,6 +48,12 @@ from tactile_contact.offline.bundle import Bundle, load_bundle
 
 __all__ = ["ContactResult", "Followed", "Reconstructor"]
 
+#: ``solve`` without ``noise=``: ΔC off the count lattice is kept as precise readings when the
+#: contact fitted to them leaves an RMS residual within this fraction of the 8-bit noise (a
+#: count/√6). Exact ΔC of a matched model leaves 0.02–0.08 of it at 1–3 N; 8-bit readings,
+#: whatever their baselines, leave their rounding (0.7 of it on each taxel that moved).
+PRECISE_FIT = 0.1
+
 #: Names this module held before its stages moved to modules of their own, and where they are.
 _STAGE_NAMES = {
     "contact_fit": (
@@ -267,9 +273,36 @@ class Reconstructor:
         bundle, or a unit mistake). ``ContactResult.taxels_used`` counts the taxels used.
         ``want_*`` False skips that output. ``noise`` [m] (scalar or (K,)): each taxel's
         compression noise (e.g. tracked online from frames without contact); default: the
-        layout's sensor model (``default_noise``).
+        layout's sensor model (``default_noise``): ΔC taken as the skin's 8-bit readings.
+        Without ``noise``, on a Reconstructor that neither follows nor fuses, ΔC off the
+        count lattice is first solved as precise readings (as :meth:`solve_deflection` does),
+        and that result kept when its contact explains the readings to within
+        :data:`PRECISE_FIT` of the 8-bit noise (a simulation's exact ΔC; read as counts, their
+        noise spread the answer along the valley: up to 20 % off, 1 N presses missed).
         """
         delta, ok = self.readings.from_delta_c(delta_c, valid)
+        if (
+            noise is None
+            and self.fusion is None
+            and not self.follow
+            and not self.readings.on_count_lattice(delta, ok)
+        ):
+            precise = self._solve(
+                Frame(
+                    delta,
+                    ok,
+                    self.readings.default_noise,
+                    quantised=False,
+                    scale_free=True,
+                    estimate=True,
+                ),
+                want_traction,
+                want_deflection,
+            )
+            used = max(precise.taxels_used, 1)
+            fit = PRECISE_FIT * self.readings.count_sigma * math.sqrt(used)
+            if precise.in_contact and precise.residual_norm <= fit:
+                return precise
         frame = Frame(delta, ok, self.readings.noise(noise), estimate=noise is None)
         if self.fusion is not None:
             return self.fusion.step_frame(frame, want_traction, want_deflection)
