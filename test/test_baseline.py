@@ -121,6 +121,30 @@ def test_tare() -> None:
     assert np.allclose(r.delta_c, 0.0) and not r.contact.any()
 
 
+def test_tare_leaves_a_channel_it_has_no_reading_of() -> None:
+    """A tare averages each channel over the readings that carried it: a module not heard
+    yet (its channels never fresh) keeps no baseline of 0 — it learns its own when it speaks,
+    instead of reading full scale in contact for good — and the tare says it was partial;
+    a module silent and calibrating again does not take its readings from before."""
+    cfg = BaselineConfig(calibration_samples=3, tare_window=4)
+    tr = BaselineTracker(24, config=cfg)
+    heard = np.r_[np.ones(12, bool), np.zeros(12, bool)]
+    for k in range(8):
+        tr.update(np.full(24, 240), k * DT, fresh=heard)
+    assert tr.tare() is False  # the second module not heard: partial
+    assert np.allclose(tr.baseline[:12], 240)
+    both = np.r_[np.full(12, 240), np.full(12, 200)]
+    for k in range(8, 12):  # the second module speaks at last
+        r = tr.update(both, k * DT)
+    assert np.allclose(tr.baseline[12:], 200) and not r.contact.any()
+    assert np.allclose(r.delta_c, 0.0)
+    # the first module goes silent and comes back recalibrating at another offset
+    tr.recalibrate(heard)
+    tr.update(np.r_[np.full(12, 180), np.full(12, 200)], 12 * DT)
+    assert tr.tare() is True  # its one reading since, not the 240s before
+    assert np.allclose(tr.baseline[:12], 180) and np.allclose(tr.baseline[12:], 200)
+
+
 def test_recalibrate() -> None:
     tr = BaselineTracker(12, config=BaselineConfig(calibration_samples=2))
     for k in range(3):

@@ -213,7 +213,11 @@ class BaselineTracker:
             nbr |= mi[:, None] == mi[None, :]
         self._nbr = nbr.astype(np.float64)
         self._nbr_cols = np.ascontiguousarray(self._nbr.T)  # column j as a contiguous row
-        self._recent: deque[NDArray[np.float64]] = deque(maxlen=cfg.tare_window)
+        # The last tare_window readings, each with the channels it carries (fresh, no module
+        # error): a tare averages each channel over its own.
+        self._recent: deque[tuple[NDArray[np.float64], NDArray[np.bool_]]] = deque(
+            maxlen=cfg.tare_window
+        )
         # Per-call constants: update() runs at 50 Hz per patch on a driver serving dozens of
         # patches, where a numpy call on 72 elements costs about as much as its arithmetic.
         self._all = np.ones(n, dtype=bool)
@@ -281,6 +285,8 @@ class BaselineTracker:
             self._recent.clear()
             return
         m = self._mask("channels", channels, False)
+        # (their readings so far are of the state they are recalibrated from: no tare's)
+        self._recent = deque(((v, f & ~m) for v, f in self._recent), maxlen=self._recent.maxlen)
         self._last_t_all = None
         self.baseline[m] = 0.0
         self._cal_sum[m] = 0.0
@@ -318,20 +324,29 @@ class BaselineTracker:
         self._frozen_since[m] = np.inf
 
     def tare(self) -> bool:
-        """Make the current readings the baselines (mean of the last ``tare_window`` readings).
+        """Make the current readings the baselines: each channel's mean over the last
+        ``tare_window`` readings that carried it (fresh, no module error, since its last
+        recalibration). A channel none of them carried (a module not heard yet, or silent
+        and being calibrated again) keeps its state: no reading of it, no baseline.
 
-        Clears the contact states. Returns False (and does nothing) before any reading.
+        Clears the contact states. Returns whether every valid channel was tared (False,
+        and nothing done, before any reading).
         """
         if not self._recent:
             return False
-        mean = np.mean(np.stack(self._recent), axis=0)
-        self.baseline = mean
-        self._onset_ref = mean.copy()
+        values = np.stack([v for v, _ in self._recent])
+        carried = np.stack([f for _, f in self._recent])
+        count = carried.sum(axis=0)
+        tared = count > 0
+        mean = (values * carried).sum(axis=0) / np.maximum(count, 1)
+        self.baseline = np.where(tared, mean, self.baseline)
+        self._onset_ref = np.where(tared, mean, self._onset_ref)
         self._ref_nan = True
-        done = self._cal_count < self.config.calibration_samples
+        done = tared & (self._cal_count < self.config.calibration_samples)
         self._cal_count[done] = self.config.calibration_samples
+        self._all_cal = bool(np.all(self.calibrated_mask))
         self._clear_dynamics()
-        return True
+        return bool(np.all(tared[self.valid]))
 
     @property
     def calibrated_mask(self) -> NDArray[np.bool_]:
@@ -417,7 +432,8 @@ class BaselineTracker:
         else:
             self._last_t[fr] = t
             self._last_t_all = None
-        self._recent.append(v)  # v is never written to
+        # (v and the masks are never written to)
+        self._recent.append((v, fr & ~err if any_err else fr))
 
         if r.dtype == np.uint8:  # a byte search costs far less than two comparisons and an or
             rb = r.tobytes()

@@ -416,8 +416,9 @@ class SkinStream:
         )
 
     def tare(self) -> tuple[list[str], list[str]]:
-        """Tare every patch: (patches tared, patches without any reading yet); readings made
-        from now on carry the new count in :attr:`PatchFrame.tares`."""
+        """Tare every patch: (patches tared, patches with a module not heard yet — their
+        other modules tared); readings made from now on carry the new count in
+        :attr:`PatchFrame.tares`."""
         done, missing = [], []
         for st in self._patches:
             (done if st.tracker.tare() else missing).append(st.layout.name)

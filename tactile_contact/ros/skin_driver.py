@@ -757,7 +757,9 @@ class SkinDriver(LifecycleNode):
         # (the idle gate sends each patch's first tared reading: they carry the tare count)
         response.success = not missing
         response.message = f"tared patches {done}" + (
-            f"; no reading yet from {missing}" if missing else ""
+            f"; modules not heard yet (their baselines left as they were) in {missing}"
+            if missing
+            else ""
         )
         self.get_logger().info(f"tare: {response.message}")
         return response
