@@ -427,3 +427,22 @@ def test_one_driver_serves_several_buses_in_one_stream(ros_context: object, tmp_
         listener.destroy_node()
         for bus in senders.values():
             bus.shutdown()
+
+
+def test_a_stamp_a_message_cannot_carry_is_replaced_not_the_batch_lost() -> None:
+    """A frame stamped past int32 seconds (a garbage CAN timestamp; any time after 2038)
+    made write_taxel_batch raise after the batcher had taken the batch: every patch in it
+    lost. Such a stamp becomes the host's clock; a negative one 0, as before."""
+    import time
+
+    from tactile_contact.ros.cdr import write_taxel_batch
+    from tactile_contact.ros.skin_driver import _stamp_s
+
+    assert _stamp_s(1.7e9) == 1.7e9 and _stamp_s(-3.0) == 0.0
+    for bad in (2.0**31 + 5.0, float("inf"), float("nan"), 1e300):
+        s = _stamp_s(bad)
+        assert abs(s - time.time()) < 60.0
+        ids = np.arange(2, dtype=np.uint16)
+        write_taxel_batch(
+            1, "", ["a"], ["f"], [round(s * 1e9)], [ids], [ids * 0.0], [b"\0\0"], [b"\0\0"]
+        )

@@ -260,8 +260,11 @@ def test_the_driver_sends_an_untouched_patch_every_fifth_period(ros_context: obj
         period_ns = PERIOD_S * 1e9
         palm_gaps = np.diff(stamps["palm"][-50:]) / period_ns
         forearm_gaps = np.diff(stamps["forearm"][-10:]) / period_ns
-        assert np.all(palm_gaps < 1.5), palm_gaps  # pressed: every period
-        assert np.all((forearm_gaps > 4.5) & (forearm_gaps < 5.5)), forearm_gaps
+        # (stamps are the virtual bus's send times: a loaded machine delays one by up to half
+        # a period; a period held back shows as a gap of 2, a keep-alive off by one as 4 or 6)
+        assert np.all(palm_gaps < 1.9), palm_gaps  # pressed: every period
+        assert np.all((forearm_gaps > 4.0) & (forearm_gaps < 6.0)), forearm_gaps
+        assert abs(forearm_gaps.mean() - 5.0) < 0.25, forearm_gaps
         assert node._gate is not None and node._gate.held >= 4 * 9
     finally:
         stack.close()

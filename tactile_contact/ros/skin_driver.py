@@ -93,6 +93,17 @@ def default_layout_path() -> Path:
     return Path(__file__).resolve().parents[2] / "config" / "hexagon_patch.yaml"
 
 
+def _stamp_s(stamp: float) -> float:
+    """A reading's CAN receive time [s] as a message stamp can carry it: 0 for a negative
+    one, the host's clock for one not finite or past a builtin_interfaces/Time's int32
+    seconds (one such frame made the whole batch unwritable: every patch of it lost)."""
+    if 0.0 <= stamp < 2.0**31:
+        return stamp
+    if stamp < 0.0:
+        return 0.0
+    return min(time.time(), 2.0**31 - 1.0)
+
+
 @dataclass
 class _Link:
     """One CAN bus the driver serves: its own stream, error policy, backoff and receive thread
@@ -453,6 +464,7 @@ class SkinDriver(LifecycleNode):
             self.destroy_lifecycle_publisher(self._batch_pub)
             self._batch_pub = None
         self._ids_u16_cache.clear()  # (a new configuration may load another layout)
+        self._ids_arrays.clear()
         if self._diag_timer is not None:
             self.destroy_timer(self._diag_timer)
             self._diag_timer = None
@@ -470,20 +482,29 @@ class SkinDriver(LifecycleNode):
 
     # -- bus ------------------------------------------------------------------------------
     def _send_config(self, link: _Link) -> None:
-        """SET_BRD_CFG, SET_TRIANG_CFG (all triangles of each board) then SET_TXMODE start."""
+        """SET_BRD_CFG, SET_TRIANG_CFG (all triangles of each board) then SET_TXMODE start;
+        ``config_sent`` once every board's went out (else tried again at the next reopen)."""
         p = self._params
-        link.config_sent = True
         for board, (first, last, shift, no_load) in sorted(link.stream.board_ranges().items()):
-            for cmd in (
-                codec.set_board_config(board, p["skin_type"], p["period_ms"], no_load),
-                codec.set_triangle_config(board, first, last, shift, True, p["cdc_offset"]),
-                codec.set_tx_mode(board, True),
-            ):
-                link.bus.send(cmd.to_message(), timeout=0.1)
+            try:
+                for cmd in (
+                    codec.set_board_config(board, p["skin_type"], p["period_ms"], no_load),
+                    codec.set_triangle_config(board, first, last, shift, True, p["cdc_offset"]),
+                    codec.set_tx_mode(board, True),
+                ):
+                    link.bus.send(cmd.to_message(), timeout=0.1)
+            except (can.CanError, OSError) as exc:
+                # (boards that wait for SET_TXMODE stay silent until it is sent)
+                self.get_logger().error(
+                    f"CAN bus {self._bus_name(link)}: sending board {board}'s configuration "
+                    f"failed ({type(exc).__name__}: {exc}); tried again when the bus reopens"
+                )
+                return
             self.get_logger().info(
                 f"sent configuration to board {board} (triangles {first}..{last})"
                 + (f" on bus {link.name}" if len(self._links) > 1 else "")
             )
+        link.config_sent = True
 
     def _receive_loop(self, link: _Link) -> None:
         """Receive, decode and publish until stopped; never raises."""
@@ -508,6 +529,12 @@ class SkinDriver(LifecycleNode):
         bus = link.bus
         if bus is None:
             self._reopen(link)
+            if link.bus is None:
+                # Readings completed before the bus went down, modules falling silent: out
+                # now, not after the reopen (up to the backoff's 10 s, with old stamps).
+                with self._lock:
+                    out = stream.poll(time.monotonic())
+                self._publish(out)  # (and a batch due)
             return
         timeout = p["receive_timeout_s"]
         batcher = self._batcher
@@ -645,7 +672,7 @@ class SkinDriver(LifecycleNode):
         self.get_logger().info(
             f"{'opened' if first else 'reconnected to'} CAN bus {self._bus_name(link)}"
         )
-        if first and self._params["send_config"] and not link.config_sent:
+        if self._params["send_config"] and not link.config_sent:
             self._send_config(link)
         self._publish_diagnostics(window=False)
 
@@ -689,7 +716,7 @@ class SkinDriver(LifecycleNode):
         if not frames:
             return
         if self._params["stamp_source"] == "can":
-            stamps = [round(max(f.stamp, 0.0) * 1e9) for f in frames]
+            stamps = [round(_stamp_s(f.stamp) * 1e9) for f in frames]
         else:
             stamps = [self.get_clock().now().nanoseconds] * len(frames)
         bus = self._batch_bus
@@ -726,7 +753,7 @@ class SkinDriver(LifecycleNode):
         msg = TaxelArray(patch=f.patch)
         msg.header.frame_id = f.frame_id
         if self._params["stamp_source"] == "can":
-            msg.header.stamp = cm.stamp_from_seconds(max(f.stamp, 0.0))
+            msg.header.stamp = cm.stamp_from_seconds(_stamp_s(f.stamp))
         else:
             msg.header.stamp = self.get_clock().now().to_msg()
         # array.array fields: the message setters check a list or a numpy array element by
