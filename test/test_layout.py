@@ -217,3 +217,20 @@ def test_unreadable_and_invalid_yaml(tmp_path):
     top.write_text("- 1\n")
     with pytest.raises(LayoutError, match="expected a mapping"):
         load_layout(top)
+
+
+def test_a_key_given_twice_and_text_not_utf8_are_refused_with_their_line(tmp_path):
+    """PyYAML keeps the last of a key given twice (a second ``modules:`` made a 6-module
+    patch 1 module) and a Latin-1 comment raised UnicodeDecodeError: both are LayoutErrors
+    naming the file and the line."""
+    text = HEXAGON.read_text()
+    twice = tmp_path / "twice.yaml"
+    twice.write_text(text.replace("    modules:", "    modules: []\n    modules:", 1))
+    with pytest.raises(LayoutError, match=r"twice\.yaml.*'modules' given twice.*line \d+"):
+        load_layout(twice)
+    latin = tmp_path / "latin.yaml"
+    latin.write_bytes(text.encode() + "# r\u00e9sum\u00e9\n".encode("latin-1"))
+    n = text.count("\n") + 1
+    with pytest.raises(LayoutError, match=rf"latin\.yaml:{n}: not UTF-8"):
+        load_layout(latin)
+    assert len(load_layout(HEXAGON).patches[0].modules) == 6  # (the file itself loads)
