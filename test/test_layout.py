@@ -234,3 +234,16 @@ def test_a_key_given_twice_and_text_not_utf8_are_refused_with_their_line(tmp_pat
     with pytest.raises(LayoutError, match=rf"latin\.yaml:{n}: not UTF-8"):
         load_layout(latin)
     assert len(load_layout(HEXAGON).patches[0].modules) == 6  # (the file itself loads)
+
+
+def test_positions_in_millimetres_are_refused_before_the_build(tmp_path):
+    """A layout written in millimetres loaded, then its build asked numpy for 24 GiB."""
+    import yaml
+
+    doc = yaml.safe_load(HEXAGON.read_text())
+    for m in doc["patches"][0]["modules"]:
+        m["position"] = [v * 1000.0 for v in m["position"]]
+    mm = tmp_path / "mm.yaml"
+    mm.write_text(yaml.safe_dump(doc))
+    with pytest.raises(LayoutError, match=r"modules\[\d\]\.position.*millimetres given\?"):
+        load_layout(mm)

@@ -122,6 +122,11 @@ class _Ctx:
 _REQUIRED = object()
 
 
+#: Farthest a module may sit from its patch's origin [m]: a patch is one piece of skin on one
+#: link (the robot's largest, an upper leg, spans ≈ 0.2 m).
+MAX_MODULE_DISTANCE_M = 2.0
+
+
 def _parse_module(c: _Ctx, raw: Any, path: str) -> ModuleSpec:
     d = c.mapping(
         raw,
@@ -145,6 +150,13 @@ def _parse_module(c: _Ctx, raw: Any, path: str) -> ModuleSpec:
         )
     ):
         raise c.err(f"{path}.position", f"expected [x, y] in metres, got {pos!r}")
+    if math.hypot(*pos) > MAX_MODULE_DISTANCE_M:
+        # (a layout in millimetres loaded, then its build asked numpy for 24 GiB of grid)
+        raise c.err(
+            f"{path}.position",
+            f"{math.hypot(*pos):.4g} m from the patch origin, more than "
+            f"{MAX_MODULE_DISTANCE_M:g} m: expected metres (millimetres given?)",
+        )
     rot = c.number(d, "rotation_deg", path, 0.0)
     mirrored = d.get("mirrored", False)
     if not isinstance(mirrored, bool):
