@@ -136,6 +136,27 @@ def test_missing_array(bundle):
         load_bundle(bundle)
 
 
+def test_an_array_the_manifest_does_not_list(bundle):
+    """A manifest without 'inverse' loaded; the Reconstructor then met a bare KeyError."""
+    m = _manifest(bundle)
+    del m["arrays"]["inverse"]
+    _write(bundle, m)
+    with pytest.raises(BundleCorruptError, match="manifest lists no array 'inverse'"):
+        load_bundle(bundle)
+
+
+def test_arrays_of_different_patches_are_refused_by_their_shapes(bundle):
+    """Each file agreeing with its manifest entry is not enough: the taxel positions of a
+    patch with a taxel fewer (a file of another build, the manifest rewritten to match)."""
+    xy = np.load(bundle / "taxel_xy.npy")[:-1]
+    np.save(bundle / "taxel_xy.npy", xy)
+    m = _manifest(bundle)
+    m["arrays"]["taxel_xy"]["shape"] = list(xy.shape)
+    _write(bundle, m)
+    with pytest.raises(BundleCorruptError, match=r"array 'taxel_ids' has shape \(72,\)"):
+        load_bundle(bundle, verify=False)
+
+
 def test_truncated_array(bundle):
     f = bundle / "forward.npy"
     f.write_bytes(f.read_bytes()[:-100])

@@ -242,6 +242,10 @@ def load_bundle(
     index = m["arrays"]
     if not isinstance(index, dict):
         raise BundleCorruptError(f"{p}: manifest 'arrays' is not a mapping")
+    lacking = [name for name in REQUIRED_ARRAYS if name not in index]
+    if lacking:
+        # (a Reconstructor met it as a bare KeyError)
+        raise BundleCorruptError(f"{p}: manifest lists no array {', '.join(map(repr, lacking))}")
     for name, info in index.items():
         try:
             f = p / str(info["file"])
@@ -263,7 +267,36 @@ def load_bundle(
                 f"{p}: array {name!r} is {a.dtype} {a.shape}, manifest says {dtype} {shape}"
             )
         arrays[name] = a
+    _check_shapes(p, arrays)
     return Bundle(p, m, arrays)
+
+
+#: Arrays every bundle holds (tactile_contact.offline.build writes them).
+REQUIRED_ARRAYS = ("taxel_xy", "taxel_ids", "forward", "inverse", "deflection_operator")
+
+
+def _check_shapes(p: Path, arrays: dict[str, NDArray[Any]]) -> None:
+    """The arrays' shapes against each other (K taxels, N traction cells): a manifest that
+    agrees with each file can still pair files of different patches or builds."""
+    k = arrays["taxel_xy"].shape[0]
+    expect = {
+        "taxel_xy": (k, 2),
+        "taxel_ids": (k,),
+        "forward": (k, None),
+        "inverse": (arrays["forward"].shape[-1] if arrays["forward"].ndim == 2 else -1, k),
+        "deflection_operator": (None, arrays["forward"].shape[-1]),
+    }
+    for name, want in expect.items():
+        got = arrays[name].shape
+        same = len(got) == len(want) and all(
+            w is None or g == w for g, w in zip(got, want, strict=True)
+        )
+        if not same:
+            shown = tuple("·" if w is None else w for w in want)
+            raise BundleCorruptError(
+                f"{p}: array {name!r} has shape {got}, the others want {shown} "
+                f"({k} taxels): arrays of different builds or patches?"
+            )
 
 
 def bundle_status(path: str | Path, layout: Any) -> str:
