@@ -557,3 +557,18 @@ def test_bus_names_the_patches_can_bus(tmp_path, capsys):
     assert main([*map(str, HAND), "-o", str(out), "--bus", "left arm"]) == 1
     assert "bus: expected a name of letters, digits" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_mistyped_row_is_left_out_and_reported_not_a_board_mirrored(tmp_path, leg):
+    """One digit shifted in a row of the leg's positions (x 0.048636 → 0.48636: 0.44 m off,
+    still under the file's 2 m bound) turned its board's cylinder R 52 → 216 mm and all ten
+    of its modules 'mirrored'. The row lies far from its module's other rows: left out,
+    reported with its line, and the board placed as from the real file."""
+    bad = _edit(tmp_path, LEG[1], lambda ls: [s.replace("0.048636", "0.48636", 1) for s in ls])
+    got = import_part(LEG[0], bad, boards=(8, 9, 10, 11))
+    outliers = [a for a in got.report.anomalies if a.kind == "outlier_rows"]
+    assert len(outliers) == 1 and "line 6" in outliers[0].message, outliers
+    assert "mirrored_pattern" not in got.report.kinds()
+    radius = {p.name: p.fit.radius for p in got.patches}
+    for p in leg.patches:
+        assert radius[p.name] == pytest.approx(p.fit.radius, rel=0.1), (p.name, radius)

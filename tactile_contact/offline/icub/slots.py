@@ -34,6 +34,10 @@ ROWS_PER_SLOT = 12
 ROWS_PER_BOARD = 192
 #: Two rows closer than this [m] are the same position (the files print 0.1 µm … 0.1 mm).
 SAME_POSITION = 1.0e-6
+#: A taxel row farther than this [m] from the median of its module's rows is not the
+#: module's (a ROBOSKIN triangle's taxels lie within ≈ 15 mm of its centre): a mistyped row
+#: (one digit shifted put a board's rows 0.44 m off and mirrored all ten of its modules).
+ROW_SPREAD_M = 0.04
 #: The module type's channel that is its origin, when one is (icub_v2_10pad: the centre).
 _ORIGIN_CHANNEL = {"icub_v2_10pad": 3}
 
@@ -395,6 +399,23 @@ def _trust_rows(items: list[Item], pos: PositionsFile, report: ImportReport) -> 
             slot=slot,
             rows=sorted(rows),
         )
+    for it in items:
+        ch = np.flatnonzero(it.trusted)
+        if len(ch) < 3:
+            continue
+        off = np.linalg.norm(it.xyz[ch] - np.median(it.xyz[ch], axis=0), axis=1)
+        far = off > ROW_SPREAD_M
+        if far.any() and np.count_nonzero(~far) >= 3:
+            it.trusted[ch[far]] = False
+            rows = it.rows[ch[far]]
+            report.add(
+                "outlier_rows",
+                f"{pos.path}: slot {it.slots[0]}: rows {_rows_text(rows, pos)} lie "
+                f"{off[far].max() * 1e3:.0f} mm from the module's other rows (more than "
+                f"{ROW_SPREAD_M * 1e3:.0f} mm): mistyped? not used to place or check it",
+                slot=it.slots[0],
+                rows=rows.tolist(),
+            )
     for it in items:
         empty = np.flatnonzero(it.taxel & ~it.has_row)
         if it.has_row.any() and len(empty):
