@@ -145,6 +145,30 @@ def test_tare_leaves_a_channel_it_has_no_reading_of() -> None:
     assert np.allclose(tr.baseline[:12], 180) and np.allclose(tr.baseline[12:], 200)
 
 
+def test_a_contact_is_released_on_time_after_the_clock_steps_back() -> None:
+    """A receive clock that steps back 50 s (an adapter restarted at a reconnect) held a
+    contact and its frozen baselines for those 50 s more: the held times move with it."""
+    cfg = BaselineConfig(calibration_samples=3, release_s=0.2)
+    tr = BaselineTracker(12, config=cfg)
+    t = 100.0
+    for _ in range(5):
+        tr.update(np.full(12, 240), t)
+        t += DT
+    for _ in range(5):
+        r = tr.update(np.full(12, 220), t)  # pressed
+        t += DT
+    assert r.contact.all()
+    r = tr.update(np.full(12, 240), t)  # lifted: quiet from now, released 0.2 s on
+    assert r.contact.all()
+    t -= 50.0  # then the clock steps back
+    released_at = None
+    for k in range(1, 40):
+        r = tr.update(np.full(12, 240), t + k * DT)
+        if released_at is None and not r.contact.any():
+            released_at = k * DT
+    assert released_at is not None and released_at <= 0.2 + 2 * DT, released_at
+
+
 def test_recalibrate() -> None:
     tr = BaselineTracker(12, config=BaselineConfig(calibration_samples=2))
     for k in range(3):

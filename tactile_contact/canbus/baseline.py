@@ -56,6 +56,9 @@ STATUS_NAMES = {
 }
 BAD_STATUS = STATUS_DISABLED | STATUS_STUCK | STATUS_DEAD | STATUS_SATURATED | STATUS_OUT_OF_RANGE
 _MAX_DT_S = 1.0  # a long silence must not let one sample pull the baseline all the way
+#: A timestamp this much [s] before the latest is a clock that stepped back (reordered
+#: frames are milliseconds apart): the tracker's held times move with it.
+CLOCK_STEP_S = 1.0
 
 
 def status_names(status: int) -> list[str]:
@@ -323,6 +326,19 @@ class BaselineTracker:
         self._quiet_since[m] = np.inf
         self._frozen_since[m] = np.inf
 
+    def _clock_stepped(self, shift: float) -> None:
+        """The timestamps jumped back by −``shift`` [s] (an adapter's clock restarted at a
+        reconnect, a wall clock set): the times held move with them, so that a contact is
+        released and a freeze ends after the durations they were due, not after the step."""
+        for a in (self._quiet_since, self._frozen_since, self._blank_until, self._last_t):
+            np.add(a, shift, out=a, where=np.isfinite(a))
+        if math.isfinite(self._blank_end):
+            self._blank_end += shift
+        if self._last_t_all is not None and math.isfinite(self._last_t_all):
+            self._last_t_all += shift
+        self._t_max += shift
+        self._fs_ok = False
+
     def tare(self) -> bool:
         """Make the current readings the baselines: each channel's mean over the last
         ``tare_window`` readings that carried it (fresh, no module error, since its last
@@ -390,6 +406,8 @@ class BaselineTracker:
             raise ValueError(f"timestamp must be finite, got {timestamp!r}")
         cfg = self.config
         t = float(timestamp)
+        if t < self._t_max - CLOCK_STEP_S:
+            self._clock_stepped(t - self._t_max)
         # Masks that are all True or all False are common (every module fresh, no module
         # error, nothing out of range); the flags below skip the operations they make no-ops.
         if fresh is None:
