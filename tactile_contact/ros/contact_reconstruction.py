@@ -499,8 +499,11 @@ class ContactReconstructionNode(Node):
 
     def destroy_node(self) -> None:
         """The node's ROS entities, and a bundle load under way left to end on its own."""
-        if self._loader is not None:
-            self._loader.shutdown(wait=False, cancel_futures=True)
+        # (getattr: a node whose construction failed, e.g. on a parameter of the wrong type,
+        # is destroyed too, by its context's shutdown)
+        loader = getattr(self, "_loader", None)
+        if loader is not None:
+            loader.shutdown(wait=False, cancel_futures=True)
         super().destroy_node()
 
     def _watching(self, watch: Any) -> None:
