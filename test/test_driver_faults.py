@@ -328,7 +328,10 @@ def open_ttys() -> int:
 
 
 def test_serial_adapter_unplugged_is_reported_retried_with_backoff_and_recovered(
-    ros_context: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    ros_context: Any,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capfd: pytest.CaptureFixture[str],
 ) -> None:
     from test.test_driver_node import Harness
 
@@ -366,6 +369,9 @@ def test_serial_adapter_unplugged_is_reported_retried_with_backoff_and_recovered
         attempts = int(bus["reconnect_attempts"])
         assert 3 <= attempts <= 8, f"backoff 0.1 → 0.4 s: {attempts} attempts in 1.2 s"
         assert bus["reconnects"] == "0" and bus["_message"].startswith("closed, reopening")
+        # While the bus is closed the stream is still polled: its modules are reported
+        # silent now (and readings completed before the failure went out), not at the reopen.
+        assert "triangle 0 silent (no reading for" in capfd.readouterr().err
         adapter.plug()
         plugged = time.monotonic()
         n = len(h.taxels)

@@ -481,9 +481,10 @@ class SkinDriver(LifecycleNode):
         super().destroy_node()
 
     # -- bus ------------------------------------------------------------------------------
-    def _send_config(self, link: _Link) -> None:
+    def _send_config(self, link: _Link, at_reopen: bool = False) -> None:
         """SET_BRD_CFG, SET_TRIANG_CFG (all triangles of each board) then SET_TXMODE start;
-        ``config_sent`` once every board's went out (else tried again at the next reopen)."""
+        ``config_sent`` once every board's went out. A send that fails raises (activation
+        fails, as it always did) or, ``at_reopen``, is logged and tried at the next reopen."""
         p = self._params
         for board, (first, last, shift, no_load) in sorted(link.stream.board_ranges().items()):
             try:
@@ -494,6 +495,8 @@ class SkinDriver(LifecycleNode):
                 ):
                     link.bus.send(cmd.to_message(), timeout=0.1)
             except (can.CanError, OSError) as exc:
+                if not at_reopen:
+                    raise
                 # (boards that wait for SET_TXMODE stay silent until it is sent)
                 self.get_logger().error(
                     f"CAN bus {self._bus_name(link)}: sending board {board}'s configuration "
@@ -534,7 +537,9 @@ class SkinDriver(LifecycleNode):
                 # now, not after the reopen (up to the backoff's 10 s, with old stamps).
                 with self._lock:
                     out = stream.poll(time.monotonic())
+                    events, stream.events = stream.events, []
                 self._publish(out)  # (and a batch due)
+                self._report_events(link, events, several)
             return
         timeout = p["receive_timeout_s"]
         batcher = self._batcher
@@ -587,6 +592,15 @@ class SkinDriver(LifecycleNode):
                 on = f" on bus {link.name}" if several else ""
                 log.warning(f"rejected frame{on}: {stream.last_error} (frames counted by kind)")
             stream.last_error = None
+        self._report_events(link, events, several)
+        # Bus-off with no data since: reopening re-initialises the controller of most adapters
+        # (socketcan needs `ip link set can0 type can restart-ms 100` to restart by itself).
+        if bus_off is not None and time.monotonic() - bus_off >= link.backoff.wait_s:
+            link.backoff.failed()  # the next reopen for a bus-off waits longer
+            self._drop_bus(link, "controller bus-off with no data since")
+
+    def _report_events(self, link: _Link, events: list, several: bool) -> None:
+        """Log a stream's events (modules silent, back, …) and publish diagnostics soon."""
         if events:
             if several:
                 events = [
@@ -598,11 +612,6 @@ class SkinDriver(LifecycleNode):
         if self._diag_due and time.monotonic() - self._diag_last >= EVENT_DIAG_MIN_S:
             self._diag_due = False
             self._publish_diagnostics(window=False)
-        # Bus-off with no data since: reopening re-initialises the controller of most adapters
-        # (socketcan needs `ip link set can0 type can restart-ms 100` to restart by itself).
-        if bus_off is not None and time.monotonic() - bus_off >= link.backoff.wait_s:
-            link.backoff.failed()  # the next reopen for a bus-off waits longer
-            self._drop_bus(link, "controller bus-off with no data since")
 
     def _due(self, kind: str) -> bool:
         """True at most once per WARN_THROTTLE_S per kind (for the receive thread's logs)."""
@@ -673,7 +682,7 @@ class SkinDriver(LifecycleNode):
             f"{'opened' if first else 'reconnected to'} CAN bus {self._bus_name(link)}"
         )
         if self._params["send_config"] and not link.config_sent:
-            self._send_config(link)
+            self._send_config(link, at_reopen=True)
         self._publish_diagnostics(window=False)
 
     def _publish(self, frames: list[PatchFrame]) -> None:
