@@ -534,10 +534,9 @@ def test_a_bundle_replaced_while_running_loads_off_the_executor(
     shutil.copytree(bundles / "hexagon", tmp_path / "new")
     shutil.rmtree(folder / "hexagon")
     (tmp_path / "new").rename(folder / "hexagon")
-    started = time.perf_counter()
     node.watch_bundle(pipe, wait=False)
-    assert time.perf_counter() - started < 0.05, "the load ran on the caller's thread"
-    assert pipe.reloads == 0 and pipe.recon is old
+    # (handed to the loader's thread: a job, the old copy still serving)
+    assert pipe.bundle in node._loads and pipe.reloads == 0 and pipe.recon is old
     deadline = time.monotonic() + 30.0
     while pipe.reloads == 0 and time.monotonic() < deadline:
         node.diagnostics_step()

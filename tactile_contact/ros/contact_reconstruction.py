@@ -397,6 +397,8 @@ class ContactReconstructionNode(Node):
         a thread and taken by a later call (the diagnostics steps')."""
         log = self.get_logger()
         sig = bundle_signature(pipe.bundle)
+        if sig == pipe.signature or sig == self._refused.get(pipe.bundle) or not sig:
+            self._loads.pop(pipe.bundle, None)  # (a load of a version gone since: unused)
         if sig == pipe.signature or sig == self._refused.get(pipe.bundle):
             return
         if not sig:
@@ -436,6 +438,7 @@ class ContactReconstructionNode(Node):
                 continue
             sig = bundle_signature(path)
             if not sig or sig == self._refused.get(path):
+                self._loads.pop(path, None)  # (a load of a version gone since: unused)
                 continue
             recon = self._load(path, sig, wait)
             if recon is None:
