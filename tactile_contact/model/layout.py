@@ -474,14 +474,15 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         for key_node, _ in node.value:
             key = self.construct_object(key_node, deep=deep)
             try:
-                first = seen.setdefault(key, key_node.start_mark.line + 1)
+                first = seen.get(key)
             except TypeError:
                 continue  # (an unhashable key: the base class says so)
-            if first != key_node.start_mark.line + 1:
+            if first is not None:
                 raise yaml.constructor.ConstructorError(
                     None,
                     None,
                     f"key {key!r} given twice in one mapping (first at line {first})",
                     key_node.start_mark,
                 )
+            seen[key] = key_node.start_mark.line + 1
         return super().construct_mapping(node, deep=deep)

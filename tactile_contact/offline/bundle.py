@@ -278,13 +278,14 @@ REQUIRED_ARRAYS = ("taxel_xy", "taxel_ids", "forward", "inverse", "deflection_op
 def _check_shapes(p: Path, arrays: dict[str, NDArray[Any]]) -> None:
     """The arrays' shapes against each other (K taxels, N traction cells): a manifest that
     agrees with each file can still pair files of different patches or builds."""
-    k = arrays["taxel_xy"].shape[0]
+    k, n = arrays["taxel_xy"].shape[0], arrays["forward"].shape[-1]
+    # (in this order: forward is known 2-D before n is compared with another array)
     expect = {
         "taxel_xy": (k, 2),
         "taxel_ids": (k,),
         "forward": (k, None),
-        "inverse": (arrays["forward"].shape[-1] if arrays["forward"].ndim == 2 else -1, k),
-        "deflection_operator": (None, arrays["forward"].shape[-1]),
+        "inverse": (n, k),
+        "deflection_operator": (None, n),
     }
     for name, want in expect.items():
         got = arrays[name].shape
