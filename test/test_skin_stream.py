@@ -347,3 +347,21 @@ def test_a_module_in_two_patches_is_rejected() -> None:
     p = load_layout(LAYOUT).patches[0]
     with pytest.raises(ValueError, match="two patches"):
         SkinStream([p, p])
+
+
+@pytest.mark.parametrize("lost", [0, 1])
+def test_a_period_lost_to_a_half_received_pair_is_one_drop(lost: int) -> None:
+    """Frame A (or B) of module 2 lost in period 3: one reading lost, one drop — the gap in
+    the readings and the incomplete pair (or orphan B) are the same period."""
+    s = make_stream(max_wait_s=10.0)
+    for k in range(8):
+        for tri in range(M):
+            for j, m in enumerate(frames(k, tri)):
+                if not (k == 3 and tri == 2 and j == lost):
+                    s.feed(m, now=k * P + tri * 1e-4)
+    v = {d.name: d for d in s.diagnostics(now=8 * P)}[
+        "patch hexagon module board 0 triangle 2"
+    ].values
+    assert v["missed_periods"] == 1
+    assert v["incomplete_periods"] + v["orphan_b"] == 1
+    assert v["drops"] == 1

@@ -521,7 +521,12 @@ class SkinStream:
         rate = m.rate_hz
         age = now - m.last_seen
         silent = m.silent
-        drops = m.missed_periods + ((mc.incomplete + mc.orphan_b) if mc is not None else 0)
+        # A period lost to a half-received pair is both a gap between readings (missed) and
+        # an incomplete pair or an orphan B: counted once. The gaps count every lost period
+        # where the stamps are the frames' own; the pairs where they are not (an interface
+        # that does not stamp: no gap is ever seen).
+        halves = (mc.incomplete + mc.orphan_b) if mc is not None else 0
+        drops = max(m.missed_periods, halves)
         values: dict[str, object] = {
             "rate_hz": float(rate),
             "readings": readings,
