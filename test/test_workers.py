@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 
 from tactile_contact.ros.workers import (
     BUS_SLACK,
+    MISSING_AFTER_S,
     SILENT_AFTER_S,
     Roster,
     WorkerInfo,
@@ -194,3 +195,39 @@ def test_a_patch_claimed_twice_is_served_by_the_older_claim() -> None:
     assert roster.taken(("p1", "p2"), old, 50.1) == {}  # the older one keeps serving
     # the older one dies: its patch is nobody's, the younger may serve it
     assert roster.taken(("p2", "p3"), new, 50.0 + SILENT_AFTER_S + 0.1) == {}
+
+
+def test_a_worker_of_a_split_never_heard_is_missing_after_the_grace() -> None:
+    roster = Roster()
+    roster.heard(WorkerInfo("host/1", 0, 3, ("a",), 10.0), now=100.0)
+    roster.heard(WorkerInfo("host/2", 2, 3, ("c",), 10.0), now=101.0)
+    assert roster.missing(100.0 + MISSING_AFTER_S - 0.1) == []  # still starting
+    assert roster.missing(100.0 + MISSING_AFTER_S) == [(1, 3)]
+    roster.heard(WorkerInfo("host/3", 1, 3, ("b",), 30.0), now=125.0)
+    assert roster.missing(126.0) == []
+    # patches named by hand (count 0) are no split; a split nobody of is left is forgotten
+    roster.heard(WorkerInfo("host/4", -1, 0, ("d",), 10.0), now=130.0)
+    roster.heard(WorkerInfo("host/5", 0, 2, ("a", "b"), 10.0), now=130.0)
+    assert roster.missing(130.0 + MISSING_AFTER_S) == [(1, 2)]
+    del roster.workers["host/5"]
+    assert roster.missing(130.0 + MISSING_AFTER_S) == []
+
+
+@pytest.mark.ros
+def test_the_monitor_says_which_worker_of_a_split_was_never_heard(ros_context: object) -> None:
+    from tactile_contact.ros.worker_monitor import WorkerMonitor
+
+    node = WorkerMonitor(context=ros_context)
+    try:
+        node.roster.heard(WorkerInfo("host/1", 0, 2, ("forearm",), 10.0), now=100.0)
+        (ok,) = node.statuses(100.2)
+        assert ok.level == b"\x00" and ok.message == "1 worker(s) serving 1 patch(es)"
+        node.roster.heard(
+            WorkerInfo("host/1", 0, 2, ("forearm",), 10.0), now=100.0 + MISSING_AFTER_S
+        )
+        (bad,) = node.statuses(100.0 + MISSING_AFTER_S)
+        assert bad.level == b"\x02"
+        assert "worker 1 of 2 never heard (its patches not served)" in bad.message
+        assert {v.key: v.value for v in bad.values}["missing"] == "1/2"
+    finally:
+        node.destroy_node()

@@ -11,7 +11,11 @@ ten times a second, reports on ``/diagnostics``:
   ("not served: worker host/pid silent for 0.6 s"): the status name its worker reports it
   under, so a monitor shows the patch stale until a worker serves it again (the launch
   respawns a dead worker; its first status replaces this one);
-- a patch claimed by two live workers, ERROR under that patch's name.
+- a patch claimed by two live workers, ERROR under that patch's name;
+- a worker of a split (``workers:=N``) never heard :data:`workers.MISSING_AFTER_S` (20 s) after
+  another of it: ERROR in ``contact_reconstruction: workers`` ("worker 1 of 2 never heard"),
+  `missing` naming them — one that fails before its first heartbeat, at every respawn, would
+  otherwise leave its patches unserved with the status OK.
 
 It publishes at once when something changes and every ``diagnostics_period`` otherwise, so
 a death is on /diagnostics 0.5–0.6 s after the last heartbeat. A worker replaced by a new one
@@ -119,12 +123,19 @@ class WorkerMonitor(Node):
         if twice:
             level = ERROR
             problems += [f"{len(twice)} patch(es) served twice"]
+        missing = self.roster.missing(now)
+        if missing:
+            level = ERROR
+            problems += [
+                f"worker {i} of {n} never heard (its patches not served)" for i, n in missing
+            ]
         message = f"{len(alive)} worker(s) serving {len(patches)} patch(es)"
         values = {
             "alive": " ".join(sorted(w.worker for w in alive)),
             "silent": " ".join(sorted(w.worker for w in silent)),
             "patches": " ".join(patches),
             "served_twice": " ".join(sorted(twice)),
+            "missing": " ".join(f"{i}/{n}" for i, n in missing),
         }
         out.append(
             diagnostic_status(

@@ -35,6 +35,11 @@ SILENT_AFTER_S = 0.5
 #: batches are ≈ 1.6 MB/s) and the batches it takes; on one machine at 50 Hz the workers' CPU
 #: measured the same either way (docs/bench/load.md), so the slack stays small.
 BUS_SLACK = 0.1
+#: A worker of a split (index i of N) not heard this long after another of the same split
+#: [s] is reported missing: one that fails before its first heartbeat (and again at every
+#: respawn) would otherwise leave its patches unserved without a word. Long enough for the
+#: slowest start (a worker loads and warms up its bundles first: seconds on a loaded machine).
+MISSING_AFTER_S = 20.0
 
 
 def default_workers(patches: int | None = None) -> int:
@@ -179,11 +184,28 @@ class Roster:
 
     silent_after_s: float = SILENT_AFTER_S
     workers: dict[str, WorkerInfo] = field(default_factory=dict)
+    #: Per split (worker count N), when a worker of it was first heard, and the indexes heard.
+    splits: dict[int, tuple[float, set[int]]] = field(default_factory=dict)
 
     def heard(self, info: WorkerInfo, now: float) -> None:
         """Record a heartbeat received at ``now``."""
         info.heard = now
         self.workers[info.worker] = info
+        if info.count > 0:
+            self.splits.setdefault(info.count, (now, set()))[1].add(info.index)
+
+    def missing(self, now: float, after_s: float = MISSING_AFTER_S) -> list[tuple[int, int]]:
+        """(index, count) of the workers of a split never heard, ``after_s`` [s] or more after
+        the first of that split was (a split none of whose workers is in the roster any more,
+        one relaunched with another count, is not looked at)."""
+        counts = {w.count for w in self.workers.values()}
+        return [
+            (i, n)
+            for n, (first, seen) in sorted(self.splits.items())
+            if n in counts and now - first >= after_s
+            for i in range(n)
+            if i not in seen
+        ]
 
     def forget(self, older_than_s: float, now: float) -> list[WorkerInfo]:
         """Drop and return the workers silent for longer than ``older_than_s``."""
