@@ -236,6 +236,31 @@ def test_a_key_given_twice_and_text_not_utf8_are_refused_with_their_line(tmp_pat
     assert len(load_layout(HEXAGON).patches[0].modules) == 6  # (the file itself loads)
 
 
+def test_merge_keys_work_and_a_key_they_override_is_not_a_duplicate(tmp_path):
+    """``<<: *defaults`` (YAML merge keys, which PyYAML's safe loader reads) broke when the
+    duplicate-key check was added ("could not determine a constructor for the tag ...merge");
+    a key given beside a merge overrides the merged one; twice beside it is still an error."""
+    base = """patches:
+  - &p1
+    name: p
+    modules:
+      - {type: roboskin12, board: 0, triangle: 0, position: [0.0, 0.0]}
+    elastomer: {thickness: 0.003}
+  - <<: *p1
+    name: q
+    bus: can2
+"""
+    merged = tmp_path / "merged.yaml"
+    merged.write_text(base)
+    lay = load_layout(merged)
+    assert [(q.name, q.bus) for q in lay.patches] == [("p", ""), ("q", "can2")]
+    assert lay.patches[1].elastomer == lay.patches[0].elastomer
+    twice = tmp_path / "twice.yaml"
+    twice.write_text(base + "    bus: can3\n")
+    with pytest.raises(LayoutError, match=r"'bus' given twice"):
+        load_layout(twice)
+
+
 def test_positions_in_millimetres_are_refused_before_the_build(tmp_path):
     """A layout written in millimetres loaded, then its build asked numpy for 24 GiB."""
     import yaml
