@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
-from tactile_contact.model.layout import load_layout
+from tactile_contact.model.layout import load_layout, parse_layout
 from tactile_contact.offline.icub.cli import main
 from tactile_contact.offline.icub.errors import IcubFileError
 from tactile_contact.offline.icub.importer import import_part
@@ -572,3 +572,18 @@ def test_a_mistyped_row_is_left_out_and_reported_not_a_board_mirrored(tmp_path, 
     radius = {p.name: p.fit.radius for p in got.patches}
     for p in leg.patches:
         assert radius[p.name] == pytest.approx(p.fit.radius, rel=0.1), (p.name, radius)
+
+
+@pytest.mark.parametrize(
+    ("name", "bus", "expect_name"),
+    [("yes", "1", "yes"), ("left-arm", "can-0", "left_arm"), ("12", "", "skin_12")],
+)
+def test_names_and_buses_are_written_as_the_strings_they_are(name, bus, expect_name):
+    """`--bus 1` wrote `bus: 1` (an int when read back: an AssertionError traceback), `--name
+    yes` a bool, `--name left-arm` a patch whose ROS topics rclpy refuses: names become ROS
+    tokens, and both are quoted where YAML would read them as something else."""
+    r = import_part(*FOREARM, boards=(13, 12), name=name, bus=bus)
+    (p,) = r.layout.patches
+    assert (p.name, p.bus) == (expect_name, bus)
+    (again,) = parse_layout(yaml.safe_load(r.text)).patches
+    assert (again.name, again.bus) == (expect_name, bus)

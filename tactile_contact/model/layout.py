@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -125,6 +126,10 @@ _REQUIRED = object()
 #: Farthest a module may sit from its patch's origin [m]: a patch is one piece of skin on one
 #: link (the robot's largest, an upper leg, spans ≈ 0.2 m).
 MAX_MODULE_DISTANCE_M = 2.0
+#: A patch name: it is a token of the patch's ROS topic names (``<patch>/contact``), which
+#: take ASCII letters, digits and '_' and no leading digit (rclpy refused ``left-arm`` only
+#: at the bringup, after the build had accepted it).
+PATCH_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 
 
 def _parse_module(c: _Ctx, raw: Any, path: str) -> ModuleSpec:
@@ -198,14 +203,15 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
         ),
     )
     name = d.get("name")
-    if not isinstance(name, str) or not name or not all(ch.isalnum() or ch in "_-" for ch in name):
+    if not isinstance(name, str) or not PATCH_NAME.fullmatch(name):
+        quote = " (a string: quote it)" if isinstance(name, int | float) else ""
         raise c.err(
             f"{path}.name",
-            f"expected a non-empty name of letters, digits, '_' or '-', got {name!r}",
+            "expected a name of ASCII letters, digits and '_' starting with a letter (it names "
+            f"the patch's ROS topics and its bundle folder), got {name!r}{quote}",
         )
     frame = d.get("frame_id", name)
-    if not isinstance(frame, str) or not frame:
-        raise c.err(f"{path}.frame_id", f"expected a non-empty string, got {frame!r}")
+    _check_frame_id(c, frame, f"{path}.frame_id")
     mods = d.get("modules")
     if not isinstance(mods, list) or not mods:
         raise c.err(f"{path}.modules", "expected a non-empty list of modules")
@@ -309,13 +315,26 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
     )
     surface = _parse_surface(c, d.get("surface"), f"{path}.surface")
     bus = d.get("bus", "")
-    if not isinstance(bus, str) or not all(ch.isalnum() or ch in "_-" for ch in bus):
+    if not isinstance(bus, str) or not all(
+        ch.isascii() and (ch.isalnum() or ch in "_-") for ch in bus
+    ):
+        quote = " (a string: quote it)" if isinstance(bus, int | float) else ""
         raise c.err(
-            f"{path}.bus", f"expected a bus name of letters, digits, '_' or '-', got {bus!r}"
+            f"{path}.bus",
+            f"expected a bus name of ASCII letters, digits, '_' or '-', got {bus!r}{quote}",
         )
     patch = PatchLayout(str(name), frame, modules, elast, sensor, grid, model, solver, surface, bus)
     _check_patch(c, patch, path)
     return patch
+
+
+def _check_frame_id(c: _Ctx, frame: Any, path: str) -> None:
+    """A tf2 frame id: a non-empty string without a leading '/' (tf2 refuses it) or white
+    space (rviz and URDF tools split on it)."""
+    if not isinstance(frame, str) or not frame or frame.startswith("/"):
+        raise c.err(path, f"expected a tf2 frame name (not empty, no leading '/'), got {frame!r}")
+    if any(ch.isspace() for ch in frame):
+        raise c.err(path, f"expected a tf2 frame name without white space, got {frame!r}")
 
 
 def _parse_surface(c: _Ctx, raw: Any, path: str) -> Surface | None:
@@ -324,8 +343,7 @@ def _parse_surface(c: _Ctx, raw: Any, path: str) -> Surface | None:
         return None
     d = c.mapping(raw, path, ("frame_id", "shape", "origin", "orientation", "radius"))
     frame = d.get("frame_id")
-    if not isinstance(frame, str) or not frame:
-        raise c.err(f"{path}.frame_id", f"expected the robot link frame's name, got {frame!r}")
+    _check_frame_id(c, frame, f"{path}.frame_id")
     if "shape" not in d:
         raise c.err(f"{path}.shape", f"missing required key ({' or '.join(SHAPES)})")
     shape = c.choice(d, "shape", path, "", SHAPES)

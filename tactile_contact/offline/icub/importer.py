@@ -87,7 +87,9 @@ class ImportResult:
 
 
 def _name(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_-]", "_", text) or "skin"
+    """A patch name stem from ``text``: what a ROS topic name takes (layout.PATCH_NAME)."""
+    name = re.sub(r"[^A-Za-z0-9_]", "_", text)
+    return name if name[:1].isascii() and name[:1].isalpha() else f"skin_{name}".rstrip("_")
 
 
 def _sha256(path: str) -> str:
@@ -199,6 +201,11 @@ def _module_line(t: str, board: int, tri: int, xy: np.ndarray, rot: float) -> st
 
 def _flow(d: dict[str, Any]) -> str:
     return yaml.safe_dump(d, default_flow_style=True, sort_keys=False, width=10_000).strip()
+
+
+def _scalar(v: object) -> str:
+    """``v`` as a YAML scalar that reads back as itself (``'1'``, ``'yes'`` quoted)."""
+    return _flow([v])[1:-1]  # type: ignore[list-item]
 
 
 def import_part(
@@ -321,9 +328,9 @@ def import_part(
             f"  # {patch.name}: {f.modules} modules, {f.taxels} taxels on a {shape}; neighbouring "
             f"taxels' in-plane vs 3-D distance: median {f.median * 1e3:.2f}, "
             f"p95 {f.p95 * 1e3:.2f}, worst {f.worst * 1e3:.2f} mm",
-            f"  - name: {d['name']}",
-            f"    frame_id: {d['frame_id']}",
-            *([f"    bus: {bus}"] if bus else []),
+            f"  - name: {_scalar(d['name'])}",
+            f"    frame_id: {_scalar(d['frame_id'])}",
+            *([f"    bus: {_scalar(bus)}"] if bus else []),
             f"    surface: {_flow(d['surface'])}",
             "    modules:",
             *lines,
