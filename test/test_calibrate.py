@@ -164,3 +164,35 @@ def test_presses_from_the_shipped_bag(tmp_path, capsys):
 def test_presses_from_a_bag_without_truth(tmp_path, capsys):
     assert main_presses([str(tmp_path / "nothing"), str(LAYOUT), "-o", str(tmp_path / "x")]) == 1
     assert "ERROR: " in capsys.readouterr().err
+
+
+def test_the_build_does_not_replace_a_calibrated_or_newer_bundle_unasked(
+    calibrated, tmp_path, capsys
+):
+    """`tactile-contact-build` over a calibrated bundle replaced it with an uncalibrated one
+    and printed only "built"; one of a newer schema was replaced the same way."""
+    import json
+    import shutil
+
+    from tactile_contact.offline.build import main as build
+
+    bundles = tmp_path / "bundles"
+    shutil.copytree(calibrated, bundles)
+    manifest = bundles / "hexagon" / "manifest.json"
+    before = manifest.read_bytes()
+    assert build([str(LAYOUT), "-o", str(bundles), "--quiet", "--jobs", "1"]) == 1
+    err = capsys.readouterr().err
+    assert "a calibrated bundle" in err and "hexagon_patch.calibrated.yaml" in err, err
+    assert "pass --force" in err and manifest.read_bytes() == before
+    # A bundle of a newer schema: this library cannot tell what it holds.
+    doc = json.loads(before)
+    doc["schema_version"], doc["library_version"] = 99, "9.9.9"
+    manifest.write_text(json.dumps(doc))
+    assert build([str(LAYOUT), "-o", str(bundles), "--quiet", "--jobs", "1"]) == 1
+    err = capsys.readouterr().err
+    assert "made by tactile_contact 9.9.9 (bundle schema 99" in err and "--force" in err, err
+    # Asked for: replaced, and the reason said.
+    assert build([str(LAYOUT), "-o", str(bundles), "--quiet", "--jobs", "1", "--force"]) == 0
+    out = capsys.readouterr().out
+    assert "hexagon: built" in out and "replaced the one there:" in out, out
+    assert "calibration" not in json.loads(manifest.read_text())

@@ -27,7 +27,13 @@ from numpy.typing import NDArray
 from tactile_contact import __version__
 from tactile_contact.model.grids import Grid, disc_quadrature, skin_grid
 from tactile_contact.model.layout import LayoutError, PatchLayout, load_layout
-from tactile_contact.offline.bundle import BundleError, bundle_status, save_bundle
+from tactile_contact.offline.bundle import (
+    BundleError,
+    bundle_status,
+    replacing,
+    save_bundle,
+    stale_reason,
+)
 
 #: Disc quadrature of the taxel average (radii × angles). The electrode edge cuts through cells,
 #: so convergence is slow: against 12 × 32 points the largest entry error is 6 % with 3 × 8,
@@ -322,9 +328,15 @@ def build_layout(
     jobs: int | None = None,
     patches: list[str] | None = None,
     progress: bool = False,
+    replaced: dict[str, str] | None = None,
 ) -> dict[str, str]:
     """Build the bundles of a layout file under ``out_dir``; returns patch → status
     (``built`` or ``up-to-date``). Raises LayoutError / BundleError / ValueError.
+
+    A bundle already there and not up to date is replaced, and why goes into ``replaced``
+    (patch → reason); without ``force`` one a rebuild would lose something of (calibrated,
+    or made by a newer library: :func:`~tactile_contact.offline.bundle.replacing`) is refused
+    before anything is built.
 
     ``jobs``: patches built at once, in processes (None or 1: here, one after another;
     ``tactile-contact-build`` defaults to 2). The processes start from a forkserver, which
@@ -342,8 +354,13 @@ def build_layout(
         st = bundle_status(out / p.name, p)
         if st == "up-to-date" and not force:
             status[p.name] = "up-to-date"
-        else:
-            todo.append(p)
+            continue
+        todo.append(p)
+        if st != "missing":
+            why = "--force" if st == "up-to-date" else stale_reason(out / p.name, p)
+            why = replacing(out / p.name, source, why, force)
+            if replaced is not None:
+                replaced[p.name] = why
     if not todo:
         return status
     bar = None
@@ -392,7 +409,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("layout", help="patch layout YAML (see docs/layout.md)")
     ap.add_argument("-o", "--output", required=True, help="output folder (DIR/<patch name>)")
-    ap.add_argument("--force", action="store_true", help="rebuild up-to-date bundles too")
+    ap.add_argument(
+        "--force",
+        action="store_true",
+        help="rebuild up-to-date bundles too, and replace calibrated or newer ones",
+    )
     ap.add_argument("--jobs", type=int, default=None, help="parallel processes (default 2)")
     ap.add_argument("--patch", action="append", help="build only this patch (repeatable)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -401,6 +422,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"ERROR: --jobs must be >= 1, got {args.jobs}", file=sys.stderr)
         return 1
     t0 = time.perf_counter()
+    replaced: dict[str, str] = {}
     try:
         status = build_layout(
             args.layout,
@@ -409,13 +431,15 @@ def main(argv: list[str] | None = None) -> int:
             jobs=args.jobs or 2,
             patches=args.patch,
             progress=not args.quiet,
+            replaced=replaced,
         )
     except (LayoutError, BundleError, ValueError, KeyError, OSError) as exc:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"ERROR: {msg}", file=sys.stderr)
         return 1
     for name, st in status.items():
-        print(f"{name}: {st} ({Path(args.output) / name})")
+        why = f"; replaced the one there: {replaced[name]}" if name in replaced else ""
+        print(f"{name}: {st} ({Path(args.output) / name}){why}")
     print(f"done in {time.perf_counter() - t0:.1f} s")
     return 0
 

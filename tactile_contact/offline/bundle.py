@@ -159,6 +159,13 @@ def read_manifest(path: str | Path) -> dict[str, Any]:
             else f"{p}: manifest is not a mapping"
         )
     ver = m.get("schema_version")
+    if isinstance(ver, int) and not isinstance(ver, bool) and ver > SCHEMA_VERSION:
+        made = m.get("library_version", "a newer version")
+        raise BundleVersionError(
+            f"{p}: bundle schema version {ver} was written by tactile_contact {made}, newer "
+            f"than this one (it reads version {SCHEMA_VERSION}): update tactile_contact, or "
+            "rebuild the bundle with this one"
+        )
     if ver != SCHEMA_VERSION:
         raise BundleVersionError(
             f"{p}: bundle schema version {ver!r} is not supported "
@@ -300,6 +307,42 @@ def _check_shapes(p: Path, arrays: dict[str, NDArray[Any]]) -> None:
             )
 
 
+def replacing(path: str | Path, source: str | Path, reason: str, force: bool = False) -> str:
+    """Why the bundle at ``path`` is replaced by a build from the layout file ``source``
+    (``reason``: :func:`bundle_status`'s). Without ``force`` a BundleError refuses what a
+    rebuild would lose: a bundle made by a newer library (this one cannot read it, nor tell
+    what it holds), and a calibrated bundle (tactile-contact-calibrate: its manifest keeps the
+    fit, its uncertainties and report, which a build does not make)."""
+    p = Path(path)
+    try:
+        m = json.loads((p / MANIFEST).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return reason
+    if not isinstance(m, dict) or force:
+        return reason
+    ver = m.get("schema_version")
+    if isinstance(ver, int) and ver > SCHEMA_VERSION:
+        made = m.get("library_version", "a newer version")
+        raise BundleVersionError(
+            f"{p}: made by tactile_contact {made} (bundle schema {ver}; this library writes "
+            f"{SCHEMA_VERSION}): not replaced — build with that version, or pass --force"
+        )
+    if isinstance(m.get("calibration"), dict):
+        was = m.get("layout_source", "its calibrated layout")
+        same = isinstance(was, str) and Path(was).resolve() == Path(source).resolve()
+        hint = (
+            "run tactile-contact-calibrate again"
+            if same
+            else f"build from {was} instead (tactile-contact-calibrate wrote it)"
+        )
+        raise BundleError(
+            f"{p}: a calibrated bundle (its manifest keeps the calibration); building from "
+            f"{source} would replace it with an uncalibrated one: {hint}, or pass --force "
+            f"(it is not up to date: {reason})"
+        )
+    return reason
+
+
 def bundle_status(path: str | Path, layout: Any) -> str:
     """``"missing"``, ``"up-to-date"`` or why it must be rebuilt (for the build tool)."""
     try:
@@ -309,3 +352,12 @@ def bundle_status(path: str | Path, layout: Any) -> str:
     except BundleError as exc:
         return f"rebuild: {type(exc).__name__}"
     return "up-to-date"
+
+
+def stale_reason(path: str | Path, layout: Any) -> str:
+    """Why the bundle at ``path`` does not load for ``layout`` ("" when it does)."""
+    try:
+        load_bundle(path, layout, verify=True)
+    except BundleError as exc:
+        return str(exc)
+    return ""
