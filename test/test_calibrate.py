@@ -121,6 +121,12 @@ def _good(n=10, k=72):
         (lambda g: g.update({k: v[:3] for k, v in g.items()}), "at least"),
         (lambda g: g.update(indenter=np.array(["golf ball"] * 10)), "unknown indenter"),
         (lambda g: g.update(deflection=np.full((10, 72), np.nan)), "no finite reading"),
+        # (these ended in tracebacks, or fitted a gain of −0.9 before saying "units")
+        (lambda g: g.update(force=np.array(["1 N"] * 10)), "'force' must hold numbers"),
+        (lambda g: g.update(indenter=np.array(["hertz:."] * 10)), "unknown indenter 'hertz:.'"),
+        (lambda g: g.update(indenter=np.array(["punch:0"] * 10)), "radius must be > 0"),
+        (lambda g: g.update(deflection=-np.abs(g["deflection"])), "read negative under"),
+        (lambda g: g["position"].__setitem__(4, [0.04, 0.04]), "press(es) [4] lie more than"),
     ],
 )
 def test_bad_presses_files_get_a_clear_error(tmp_path, capsys, change, message):

@@ -222,8 +222,13 @@ def calibrate(
                 ],
             }
     r2 = np.bincount(rows, res * res, minlength=len(fam))
-    d2 = np.bincount(rows, presses.deflection[model.use] ** 2, minlength=len(fam))
-    per_press = np.sqrt(r2 / np.maximum(d2, 1e-300))
+    read = presses.deflection[model.use]
+    d2 = np.bincount(rows, read**2, minlength=len(fam))
+    p2 = np.bincount(rows, (read + res) ** 2, minlength=len(fam))  # (res = predicted − read)
+    # Over the larger of what the press read and what the fit predicts for it: a press that
+    # reads nothing where the fit expects a contact is 100 % off (over its own readings it was
+    # 10^150 %), and one that reads a contact the fit does not predict likewise.
+    per_press = np.sqrt(r2 / np.maximum(np.maximum(d2, p2), 1e-300))
     return Calibration(
         footprint_radius=float(foot),
         gain=gain,

@@ -15,6 +15,7 @@ read with the ``rosbags`` library).
 from __future__ import annotations
 
 import argparse
+import math
 import re
 import sys
 import zipfile
@@ -60,12 +61,17 @@ def indenter_named(name: str) -> Indenter:
     key = str(name).strip().lower()
     if key in INDENTERS:
         return INDENTERS[key]
-    m = re.fullmatch(r"(hertz|sphere|punch|cylinder)\s*:\s*([0-9.]+)", key)
+    m = re.fullmatch(r"(hertz|sphere|punch|cylinder)\s*:\s*([0-9]*\.?[0-9]+(?:e[-+]?[0-9]+)?)", key)
     if m:
         size = float(m.group(2)) * 1e-3
+        if not (math.isfinite(size) and 0.0 < size <= 1.0):
+            raise CalibrationError(f"indenter {name!r}: its radius must be > 0 and at most 1000 mm")
         return HertzSphere(size) if m.group(1) in ("hertz", "sphere") else FlatPunch(size)
     known = ", ".join(sorted(INDENTERS))
-    raise CalibrationError(f"unknown indenter {name!r}: expected one of {known}, or hertz:R_mm")
+    raise CalibrationError(
+        f"unknown indenter {name!r}: expected one of {known}, or hertz:R / punch:a "
+        "(the sphere's or the punch's radius R, a in mm)"
+    )
 
 
 _NPZ_HINT = (
@@ -121,7 +127,16 @@ def load_presses(path: str | Path, patch: PatchLayout) -> Presses:
             raise CalibrationError(f"{p}: missing key {key!r} (keys: {sorted(data)})")
         return data[key]
 
-    force = np.asarray(need("force"), dtype=np.float64)
+    def numbers(key: str, raw: NDArray) -> NDArray[np.float64]:
+        a = np.asarray(raw)
+        if a.dtype.kind not in "biuf":  # (strings "1 N", complex, objects)
+            first = a.flat[0] if a.size else None
+            raise CalibrationError(
+                f"{p}: {key!r} must hold numbers, got {a.dtype} values (first {first!r})"
+            )
+        return a.astype(np.float64)
+
+    force = numbers("force", need("force"))
     if force.ndim != 1:
         raise CalibrationError(f"{p}: 'force' must have shape (N,), got {force.shape}")
     n = len(force)
@@ -134,13 +149,13 @@ def load_presses(path: str | Path, patch: PatchLayout) -> Presses:
             f"{p}: needs 'deflection' [m] or 'delta_c' [counts], (presses, taxels); "
             f"keys: {sorted(data)}"
         )
-    d = np.asarray(data[src], dtype=np.float64)
+    d = numbers(src, data[src])
     if d.ndim != 2 or d.shape[1] != k:
         raise CalibrationError(
             f"{p}: {src!r} must have shape (presses, {k}): one reading per taxel of patch "
             f"{patch.name!r} in each row, got {d.shape}"
         )
-    pos = np.asarray(need("position"), dtype=np.float64)
+    pos = numbers("position", need("position"))
     if pos.ndim != 2 or pos.shape[1] != 2:
         raise CalibrationError(f"{p}: 'position' must have shape (presses, 2) [m], got {pos.shape}")
     _same_presses(p, {"force": n, src: d.shape[0], "position": pos.shape[0]})
@@ -200,11 +215,14 @@ def load_presses(path: str | Path, patch: PatchLayout) -> Presses:
         )
     if n < MIN_PRESSES:
         raise CalibrationError(f"{p}: {n} presses; at least {MIN_PRESSES} are needed")
+    _check_readings(p, src, d, valid, pos, patch)
     names = None
     if "indenter" in data:
         raw = np.asarray(data["indenter"])
         if raw.shape != (n,):
             raise CalibrationError(f"{p}: 'indenter' must have shape ({n},), got {raw.shape}")
+        if raw.dtype.kind == "S":  # (bytes written by another tool: names all the same)
+            raw = np.char.decode(raw, "utf-8", "replace")
         names = tuple(str(x) for x in raw)
         for x in names:
             try:
@@ -212,6 +230,46 @@ def load_presses(path: str | Path, patch: PatchLayout) -> Presses:
             except CalibrationError as e:
                 raise CalibrationError(f"{p}: 'indenter': {e}") from None
     return Presses(d, force, pos, names, valid)
+
+
+#: Taxels within this distance [m] of a press's position read it (its sign test).
+SIGN_REACH_M = 0.004
+#: A press farther than this from every taxel [m] is read by none (a position in another
+#: frame, a press beside the skin).
+UNREAD_DISTANCE_M = 0.01
+
+
+def _check_readings(
+    p: Path, src: str, d: NDArray, valid: NDArray, pos: NDArray, patch: PatchLayout
+) -> None:
+    """Readings a fit cannot use, named: the sign convention reversed (compressions are
+    positive: ΔC grows when pressed), a press beside the skin. (A press that reads almost
+    nothing is kept: a light one between point taxels does; the report names it if the fit
+    predicts more.)"""
+    xy = patch.taxel_xy()
+    dist = np.hypot(*(pos[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))  # (presses, K)
+    far = dist.min(axis=1)
+    beside = np.flatnonzero(far > UNREAD_DISTANCE_M)
+    if beside.size:
+        i = int(beside[0])
+        raise CalibrationError(
+            f"{p}: press(es) {beside.tolist()} lie more than {UNREAD_DISTANCE_M * 1e3:g} mm "
+            f"from every taxel (press {i} at {pos[i].tolist()} m: {far[i] * 1e3:.1f} mm): "
+            "positions in the patch frame, in metres?"
+        )
+    # Under the press: the reading of largest magnitude within SIGN_REACH_M of its position
+    # (anywhere else, baseline offsets and the bulge ring around a light press read as much
+    # as its peak: a recorded session's presses had their largest |reading| negative in 87
+    # of 93).
+    under = np.where((dist <= SIGN_REACH_M) & valid, d, 0.0)
+    sign = np.sign(under[np.arange(len(d)), np.abs(under).argmax(axis=1)])
+    if np.sum(sign < 0) > 2 * max(np.sum(sign > 0), 1):
+        raise CalibrationError(
+            f"{p}: {src!r}: {int(np.sum(sign < 0))} of {len(d)} presses read negative under "
+            f"their position (the taxels within {SIGN_REACH_M * 1e3:g} mm), "
+            f"{int(np.sum(sign > 0))} positive: compression is positive (ΔC grows when "
+            "pressed); readings of the opposite sign convention?"
+        )
 
 
 def presses_from_bag(bag: Path, patch: PatchLayout, *, min_force: float = 0.05) -> dict:
