@@ -172,6 +172,47 @@ def test_skin_spec_rows_with_missing_fields_are_refused(tmp_path):
     assert exc.value.line is not None
 
 
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        ('"noLoad">         0xf0', '"noLoad">         0x1f0',
+         r"noLoad 0x1f0 = 496 outside 0\.\.255"),
+        ("1              2           0x2200       </param>",
+         "1              16           0x2200       </param>", r"shift 16 outside 0\.\.15"),
+        ("1           14          14          50", "1           14          13          50",
+         "addrEnd 13 before addrStart 14"),
+    ],
+)  # fmt: skip
+def test_skin_spec_values_the_boards_cannot_take_name_the_spec_file_and_line(
+    tmp_path, old, new, message
+):
+    """noLoad 0x1f0 or shift 16 reached the layout and were blamed on the .ini there."""
+    bad = _edit(tmp_path, ARM_SPEC, lambda ls: [s.replace(old, new, 1) for s in ls])
+    with pytest.raises(IcubFileError, match=message) as exc:
+        read_skin_spec(bad)
+    assert exc.value.line is not None and str(bad) in str(exc.value)
+
+
+def test_robot_files_with_an_address_twice_or_a_port_twice_are_refused(tmp_path):
+    skin, wrapper = DATA / "left_arm-eb24-j4_7-skin.xml", DATA / "left_arm-skin_wrapper.xml"
+    text = skin.read_text()
+    listed = re.search(r'"skinCanAddrsPatch1">([^<]*)<', text).group(1).split()
+    dup = tmp_path / "skin.xml"
+    dup.write_text(text.replace(" ".join(listed), " ".join([*listed[:-1], listed[0]]), 1))
+    with pytest.raises(IcubFileError, match=rf"CAN address {int(listed[0], 0)} listed twice"):
+        part_addresses(dup, wrapper, "left_forearm")
+    high = tmp_path / "skin16.xml"
+    high.write_text(text.replace(" ".join(listed), " ".join([*listed[:-1], "16"]), 1))
+    with pytest.raises(IcubFileError, match=r"address 16 outside 0\.\.15"):
+        part_addresses(high, wrapper, "left_forearm")
+    lines = wrapper.read_text().splitlines()
+    k = next(i for i, s in enumerate(lines) if '"left_forearm"' in s)
+    twice = tmp_path / "wrapper.xml"
+    twice.write_text("\n".join([*lines[: k + 1], lines[k], *lines[k + 1 :]]) + "\n")
+    with pytest.raises(IcubFileError, match=r"port left_forearm defined twice \(also at line"):
+        part_addresses(skin, twice, "left_forearm")
+
+
 # -- files that do not match each other ----------------------------------------------------
 
 

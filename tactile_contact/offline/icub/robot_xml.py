@@ -119,6 +119,34 @@ def _int(path: str, p: _Param, token: str, what: str) -> int:
         ) from None
 
 
+def _ranged(path: str, p: _Param, token: str, what: str, lo: int, hi: int) -> int:
+    """An integer field within [lo, hi] (what the boards' configuration messages carry)."""
+    v = _int(path, p, token, what)
+    if not lo <= v <= hi:
+        said = token if token == str(v) else f"{token} = {v}"
+        where = p.name if p.name == what else f"{p.name}: {what}"
+        raise IcubFileError(path, p.line, f"{where} {said} outside {lo}..{hi}")
+    return v
+
+
+#: Field ranges of the boards' configuration (SET_BRD_CFG / SET_TRIANG_CFG, docs/can_protocol.md).
+_RANGES = {
+    "period": (1, 255),
+    "skinType": (0, 15),
+    "noLoad": (0, 255),
+    "shift": (0, 15),
+    "cdcOffset": (0, 0xFFFF),
+    "addrStart": (0, 15),
+    "addrEnd": (0, 15),
+    "addr": (0, 15),
+}
+
+
+def _field(path: str, p: _Param, token: str, what: str) -> int:
+    lo, hi = _RANGES.get(what, (-(2**31), 2**31 - 1))
+    return _ranged(path, p, token, what, lo, hi)
+
+
 def _bool(path: str, p: _Param, token: str, what: str) -> bool:
     t = token.strip().lower()
     if t in ("true", "1"):
@@ -157,7 +185,7 @@ def read_skin_spec(path: str | Path) -> SkinSpec:
 
     default_board = BoardConfig(
         *(
-            _int(p, q, t, name)
+            _field(p, q, t, name)
             for name in ("period", "skinType", "noLoad")
             for q, t in [one(db, name, "defaultCfgBoard")]
         )
@@ -167,8 +195,8 @@ def read_skin_spec(path: str | Path) -> SkinSpec:
     q_of, t_of = one(dt, "cdcOffset", "defaultCfgTriangle")
     default_triangle = TriangleConfig(
         _bool(p, q_en, t_en, "enabled"),
-        _int(p, q_sh, t_sh, "shift"),
-        _int(p, q_of, t_of, "cdcOffset"),
+        _field(p, q_sh, t_sh, "shift"),
+        _field(p, q_of, t_of, "cdcOffset"),
         q_en.line,
     )
     boards: dict[int, BoardConfig] = {}
@@ -184,11 +212,13 @@ def read_skin_spec(path: str | Path) -> SkinSpec:
                 f"noLoad), got {len(tok)}",
             )
         _, a0, a1, period, skin_type, no_load = (
-            _int(p, q, t, w)
+            _field(p, q, t, w)
             for t, w in zip(
                 tok, ("patch", "addrStart", "addrEnd", "period", "skinType", "noLoad"), strict=True
             )
         )
+        if a1 < a0:
+            raise IcubFileError(p, q.line, f"{q.name}: addrEnd {a1} before addrStart {a0}")
         for a in range(a0, a1 + 1):
             boards[a] = BoardConfig(period, skin_type, no_load)
     triangles: dict[tuple[int, int], TriangleConfig] = {}
@@ -209,8 +239,8 @@ def read_skin_spec(path: str | Path) -> SkinSpec:
                 p, q.line, f"{q.name}: address {addr} or triangles {first}..{last} outside 0..15"
             )
         cfg = TriangleConfig(
-            _bool(p, q, tok[4], "enabled"), _int(p, q, tok[5], "shift"),
-            _int(p, q, tok[6], "cdcOffset"), q.line,
+            _bool(p, q, tok[4], "enabled"), _field(p, q, tok[5], "shift"),
+            _field(p, q, tok[6], "cdcOffset"), q.line,
         )  # fmt: skip
         for t in range(first, last + 1):
             triangles[(addr, t)] = cfg
@@ -226,7 +256,11 @@ def read_can_addresses(path: str | Path) -> tuple[int, ...]:
     for name in ("skinCanAddrsPatch2", "skinCanAddrsPatch1"):
         if name in group:
             q = group[name]
-            out += [_int(p, q, t, "address") for t in q.text.split()]
+            for t in q.text.split():
+                a = _ranged(p, q, t, "address", 0, 15)
+                if a in out:  # (a board answers once on its bus: two slots cannot share it)
+                    raise IcubFileError(p, q.line, f"{name}: CAN address {a} listed twice")
+                out.append(a)
     if not out:
         raise IcubFileError(p, None, "group patches: no skinCanAddrsPatch1/2 parameter")
     return tuple(out)
@@ -236,9 +270,15 @@ def read_wrapper_ports(path: str | Path) -> dict[str, tuple[int, int]]:
     """Port name → (first, last) index into the device vector of a ``*-skin_wrapper.xml``."""
     p = str(path)
     out: dict[str, tuple[int, int]] = {}
+    lines: dict[str, int] = {}
     for q in _params(p):
         if q.group != "ports":
             continue
+        if q.name in lines:
+            raise IcubFileError(
+                p, q.line, f"port {q.name} defined twice (also at line {lines[q.name]})"
+            )
+        lines[q.name] = q.line
         tok = q.text.split()
         if len(tok) != 4:
             raise IcubFileError(
