@@ -165,6 +165,10 @@ M = ("patches", 0, "modules")
             "patches[0].elastomer.poisson: must be <= 0.5, got 0.51",
         ),
         (("patches", 0, "elastomer", "young"), "soft", "elastomer.young: expected a number"),
+        (("patches", 0, "elastomer", "young"), 0.21, "expected pascals (MPa given? 0.21 MPa"),
+        (("patches", 0, "elastomer", "young"), 2.1e11, "stiffer than any skin elastomer"),
+        ((*M, 0, "type"), ["roboskin12"], "modules[0].type: unknown"),
+        (("patches", 0, "grid", "mask"), ["hull"], "grid.mask: unknown value ['hull']"),
         (("patches", 0, "elastomer", "young"), float("nan"), "must be finite"),
         (("patches", 0, "sensor", "area"), 1e-5, "sensor.area: give either taxel_radius or area"),
         (("patches", 0, "grid", "mask"), "circle", "grid.mask: unknown value 'circle'"),
@@ -280,3 +284,25 @@ def test_positions_in_millimetres_are_refused_before_the_build(tmp_path):
     mm.write_text(yaml.safe_dump(doc))
     with pytest.raises(LayoutError, match=r"modules\[\d\]\.position.*millimetres given\?"):
         load_layout(mm)
+
+
+def test_numbers_yaml_reads_as_strings_are_taken_in_lists_as_in_scalars(doc):
+    """PyYAML (YAML 1.1) reads 5e-3 as a string; scalars took it, positions, a surface's
+    origin and orientation and Ψ refused it ("expected [x, y] in metres, got ['5e-3', 0]")."""
+    m = doc["patches"][0]["modules"][1]
+    x, y = m["position"]
+    m["position"] = [f"{x:e}", y]
+    doc["patches"][0]["surface"] = {
+        "frame_id": "l_forearm",
+        "shape": "plane",
+        "origin": ["5e-2", 0, "0"],
+        "orientation": [0, 0, 0, "1e0"],
+    }
+    doc["patches"][0]["model"] = {"kind": "boussinesq", "psi": "25e-2"}
+    p = parse_layout(doc).patches[0]
+    assert p.modules[1].position == pytest.approx((x, y))
+    assert p.surface.origin == (0.05, 0.0, 0.0) and p.surface.orientation == (0, 0, 0, 1.0)
+    assert p.model.psi == 0.25
+    m["position"] = ["five", y]
+    with pytest.raises(LayoutError, match=r"modules\[1\]\.position: expected \[x, y\]"):
+        parse_layout(doc)

@@ -49,6 +49,18 @@ from tactile_contact.model.surface import SHAPES, Surface
 # name exactly the offending entry.
 
 
+def _as_float(v: Any) -> float | None:
+    """``v`` as a float if it is a number or a numeric string, else None (bools are not)."""
+    if isinstance(v, str):
+        try:
+            return float(v)
+        except ValueError:
+            return None
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        return None
+    return float(v)
+
+
 class _Ctx:
     def __init__(self, source: str) -> None:
         self.source = source
@@ -68,6 +80,15 @@ class _Ctx:
                 f"unknown key (allowed: {', '.join(allowed)})",
             )
         return value
+
+    def numbers(self, v: Any, path: str, n: int, what: str) -> tuple[float, ...]:
+        """A list of ``n`` finite numbers (numeric strings as :meth:`number` takes them:
+        PyYAML reads ``5e-2`` as a string)."""
+        if isinstance(v, list | tuple) and len(v) == n:
+            out = [_as_float(x) for x in v]
+            if all(x is not None and math.isfinite(x) for x in out):
+                return tuple(float(x) for x in out)  # type: ignore[arg-type]
+        raise self.err(path, f"expected {what}, got {v!r}")
 
     def number(
         self,
@@ -115,9 +136,9 @@ class _Ctx:
         self, d: dict[str, Any], key: str, path: str, default: str, options: tuple[str, ...]
     ) -> str:
         v = d.get(key, default)
-        if v not in options:
+        if not isinstance(v, str) or v not in options:  # (a list is unhashable: TypeError)
             raise self.err(f"{path}.{key}", f"unknown value {v!r} (known: {', '.join(options)})")
-        return str(v)
+        return v
 
 
 _REQUIRED = object()
@@ -140,21 +161,12 @@ def _parse_module(c: _Ctx, raw: Any, path: str) -> ModuleSpec:
     )
     if "type" not in d:
         raise c.err(f"{path}.type", "missing required key")
-    if d["type"] not in MODULE_TYPES:
+    if not isinstance(d["type"], str) or d["type"] not in MODULE_TYPES:
         known = ", ".join(sorted(MODULE_TYPES))
         raise c.err(f"{path}.type", f"unknown module type {d['type']!r} (known: {known})")
     board = c.number(d, "board", path, _REQUIRED, lo=0, hi=15, integer=True)
     tri = c.number(d, "triangle", path, _REQUIRED, lo=0, hi=15, integer=True)
-    pos = d.get("position")
-    if (
-        not isinstance(pos, (list, tuple))
-        or len(pos) != 2
-        or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-            for v in pos
-        )
-    ):
-        raise c.err(f"{path}.position", f"expected [x, y] in metres, got {pos!r}")
+    pos = c.numbers(d.get("position"), f"{path}.position", 2, "[x, y] in metres")
     if math.hypot(*pos) > MAX_MODULE_DISTANCE_M:
         # (a layout in millimetres loaded, then its build asked numpy for 24 GiB of grid)
         raise c.err(
@@ -227,12 +239,14 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
     kind = c.choice(mod, "kind", f"{path}.model", "love", MODELS)
     elast = Elastomer(
         thickness=c.number(e, "thickness", ep, 2.0e-3, lo=0.0, lo_open=True, hi=0.1, unit="m"),
-        young=c.number(e, "young", ep, 2.1e5, lo=0.0, lo_open=True),
+        young=_young(c, e, ep),
         # ν = 0.5 (incompressible, Ecoflex) is fine for both models: every kernel stays finite.
         # Beyond 0.5 the material would be unstable; ν ≤ −1 likewise.
         poisson=c.number(e, "poisson", ep, 0.5, lo=-1.0, lo_open=True, hi=0.5),
     )
     psi: str | float = mod.get("psi", "exact")
+    if psi != "exact" and _as_float(psi) is not None:
+        psi = _as_float(psi)  # type: ignore[assignment]
     if kind == "love" and "psi" in mod:
         # Silently ignoring it would let a user believe the Ψ they set shapes the matrices.
         raise c.err(f"{path}.model.psi", "only the boussinesq model has a Ψ (kind is love)")
@@ -328,6 +342,26 @@ def _parse_patch(c: _Ctx, raw: Any, path: str) -> PatchLayout:
     return patch
 
 
+#: Young's moduli [Pa] a skin's elastomer has (silicones and foams: ≈ 10 kPa to 100 MPa);
+#: outside, a unit was mistaken (0.21 for 0.21 MPa read 1e-6 of every force).
+YOUNG_RANGE_PA = (1.0e3, 1.0e9)
+
+
+def _young(c: _Ctx, e: dict[str, Any], path: str) -> float:
+    """The elastomer's Young's modulus [Pa], refused outside YOUNG_RANGE_PA naming the unit."""
+    v = float(c.number(e, "young", path, 2.1e5, lo=0.0, lo_open=True))
+    lo, hi = YOUNG_RANGE_PA
+    if v < lo:
+        raise c.err(
+            f"{path}.young",
+            f"{v:g} Pa is softer than any skin elastomer (>= {lo:g} Pa): expected pascals "
+            f"(MPa given? {v:g} MPa is {v * 1e6:g} Pa)",
+        )
+    if v > hi:
+        raise c.err(f"{path}.young", f"{v:g} Pa is stiffer than any skin elastomer (<= {hi:g} Pa)")
+    return v
+
+
 def _check_frame_id(c: _Ctx, frame: Any, path: str) -> None:
     """A tf2 frame id: a non-empty string without a leading '/' (tf2 refuses it) or white
     space (rviz and URDF tools split on it)."""
@@ -349,17 +383,7 @@ def _parse_surface(c: _Ctx, raw: Any, path: str) -> Surface | None:
     shape = c.choice(d, "shape", path, "", SHAPES)
 
     def vector(key: str, n: int, what: str) -> tuple[float, ...]:
-        v = d.get(key)
-        if (
-            not isinstance(v, list)
-            or len(v) != n
-            or not all(
-                isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-                for x in v
-            )
-        ):
-            raise c.err(f"{path}.{key}", f"expected {what}, got {v!r}")
-        return tuple(float(x) for x in v)
+        return c.numbers(d.get(key), f"{path}.{key}", n, what)
 
     origin = vector("origin", 3, "[x, y, z] in metres")
     quat = vector("orientation", 4, "a unit quaternion [x, y, z, w]")
