@@ -166,3 +166,23 @@ def test_a_script_without_a_main_guard_builds_a_layout_of_two_patches(tmp_path):
     assert r.returncode == 0, r.stderr
     assert r.stdout.count("'built'") == 2, r.stdout
     assert "[('hexagon', 'built'), ('hexagon_b', 'built')]" in r.stdout
+
+
+def test_a_grid_too_large_for_memory_is_refused_before_the_build(tmp_path):
+    """Modules 0.42 m apart with no grid mask asked numpy for hundreds of GiB minutes into the
+    build (a MemoryError traceback, or a swapping machine): refused at once, naming the patch,
+    the matrix, its size and what to change."""
+    layout = tmp_path / "wide.yaml"
+    layout.write_text(
+        "patches:\n"
+        "  - name: wide\n"
+        "    modules:\n"
+        "      - {type: roboskin12, board: 0, triangle: 0, position: [0.0, 0.0]}\n"
+        "      - {type: roboskin12, board: 0, triangle: 1, position: [0.3, 0.3]}\n"
+        "    grid: {mask: none, traction_cell: 0.0005, deflection_cell: 0.0005}\n"
+    )
+    r = run(str(layout), "-o", str(tmp_path / "b"), "--quiet")
+    assert r.returncode == 1
+    assert "ERROR: patch wide: its deflection operator would take" in r.stderr
+    assert "GiB" in r.stderr and "coarser grid cells" in r.stderr
+    assert not (tmp_path / "b" / "wide").exists()

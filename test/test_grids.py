@@ -99,3 +99,14 @@ def test_invalid_arguments():
         Grid.covering(np.zeros((0, 2)), 0.001, 0.0)
     with pytest.raises(ValueError, match="unknown mask"):
         skin_grid([[0, 0]], 0.001, 0.0, "round")
+
+
+@given(
+    st.lists(st.tuples(st.floats(-0.1, 0.1), st.floats(-0.1, 0.1)), min_size=1, max_size=30),
+    st.lists(st.tuples(st.floats(-0.2, 0.2), st.floats(-0.2, 0.2)), min_size=1, max_size=50),
+)
+def test_distance_to_points_is_the_nearest_of_all_pairs(points, query):
+    """The k-d tree's distances against every pair's (the reference it replaced)."""
+    p, q = np.array(points), np.array(query)
+    brute = np.sqrt(((q[:, None, :] - p[None, :, :]) ** 2).sum(-1).min(axis=1))
+    np.testing.assert_allclose(distance_to_points(q, p), brute, rtol=1e-12, atol=1e-15)

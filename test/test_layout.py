@@ -306,3 +306,11 @@ def test_numbers_yaml_reads_as_strings_are_taken_in_lists_as_in_scalars(doc):
     m["position"] = ["five", y]
     with pytest.raises(LayoutError, match=r"modules\[1\]\.position: expected \[x, y\]"):
         parse_layout(doc)
+
+
+def test_a_patch_spread_over_more_than_half_a_metre_is_refused(doc):
+    """Two modules given in a robot frame by mistake, 1.4 m apart: the build's grid covered
+    their bounding box (6 GiB); a patch is one piece of skin on one link."""
+    doc["patches"][0]["modules"][5]["position"] = [1.0, 1.0]
+    with pytest.raises(LayoutError, match=r"patches\[0\]\.modules: the taxels span 1\.4\d m"):
+        parse_layout(doc)

@@ -147,6 +147,9 @@ _REQUIRED = object()
 #: Farthest a module may sit from its patch's origin [m]: a patch is one piece of skin on one
 #: link (the robot's largest, an upper leg, spans ≈ 0.2 m).
 MAX_MODULE_DISTANCE_M = 2.0
+#: Widest a patch's taxels may spread [m] (an iCub upper leg's patch spans ≈ 0.2 m): its
+#: build's grid covers their bounding box (1.4 m at 1 mm cells asked numpy for 6 GiB).
+MAX_PATCH_SPAN_M = 0.5
 #: A patch name: it is a token of the patch's ROS topic names (``<patch>/contact``), which
 #: take ASCII letters, digits and '_' and no leading digit (rclpy refused ``left-arm`` only
 #: at the bringup, after the build had accepted it).
@@ -431,6 +434,15 @@ def _check_patch(c: _Ctx, patch: PatchLayout, path: str) -> None:
             f"({xy[j, 0]:.4f}, {xy[j, 1]:.4f}) m is {math.sqrt(d2[i, j]) * 1e3:.2f} mm from "
             f"one of modules[{owner[i]}] (their electrodes of radius "
             f"{patch.sensor.taxel_radius * 1e3:g} mm overlap below {limit * 1e3:g} mm)",
+        )
+    span = float(np.sqrt(d2[np.isfinite(d2)].max())) if len(xy) > 1 else 0.0
+    if span > MAX_PATCH_SPAN_M:
+        i, j = np.unravel_index(int(np.argmax(np.where(np.isfinite(d2), d2, -1.0))), d2.shape)
+        raise c.err(
+            f"{path}.modules",
+            f"the taxels span {span:.3g} m (modules[{owner[i]}] to modules[{owner[j]}]), more "
+            f"than {MAX_PATCH_SPAN_M:g} m: a patch is one piece of skin on one link, its "
+            "positions in its own frame (positions in a robot frame? a second patch?)",
         )
 
 

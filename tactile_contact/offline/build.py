@@ -51,6 +51,31 @@ def grids_for(patch: PatchLayout) -> tuple[Grid, Grid]:
     return tg, dg
 
 
+#: Largest matrix a build makes [bytes] (float64): beyond it the layout asks for more than a
+#: workstation has, and numpy would fail (or the machine swap) minutes into the build.
+MAX_MATRIX_BYTES = 4 << 30
+
+
+def check_size(patch: PatchLayout, tg: Grid, dg: Grid) -> None:
+    """ValueError naming the patch when its largest matrix would exceed MAX_MATRIX_BYTES:
+    the forward matrix (taxels × traction cells), the deflection operator (deflection cells
+    × traction cells) and a Laplacian regulariser (traction cells²)."""
+    k, nt, nd = len(patch.taxel_xy()), tg.n_cells, dg.n_cells
+    sizes = {"forward matrix": k * nt, "deflection operator": nd * nt}
+    if patch.solver.regulariser == "laplacian":
+        sizes["Laplacian regulariser"] = nt * nt
+    what, n = max(sizes.items(), key=lambda kv: kv[1])
+    if 8 * n > MAX_MATRIX_BYTES:
+        g = patch.grid
+        raise ValueError(
+            f"patch {patch.name}: its {what} would take {8 * n / 2**30:.1f} GiB ({nt} traction "
+            f"cells of {g.traction_cell * 1e3:g} mm, {nd} deflection cells of "
+            f"{g.deflection_cell * 1e3:g} mm, mask {g.mask}; at most "
+            f"{MAX_MATRIX_BYTES / 2**30:g} GiB): coarser grid cells, grid.mask taxels or "
+            "modules, or check the module positions"
+        )
+
+
 def laplacian(grid: Grid) -> NDArray[np.float64]:
     """(N, N) graph Laplacian of the masked cells (4-neighbours), the smoothness regulariser."""
     idx = -np.ones(grid.shape, dtype=int)
@@ -198,6 +223,7 @@ def build_patch(
             progress(stage, n)
 
     tg, dg = grids_for(patch)
+    check_size(patch, tg, dg)
     done("forward matrix", 0)
     c = taxel_matrix(patch, tg, lambda n: done("forward matrix", n))
     reg = laplacian(tg) if patch.solver.regulariser == "laplacian" else None
