@@ -152,7 +152,9 @@ def test_not_an_npz_and_missing_file(tmp_path, capsys):
 def test_presses_from_the_shipped_bag(tmp_path, capsys):
     out = tmp_path / "session.npz"
     bag = ROOT / "test" / "data" / "hexagon_session"
-    assert main_presses([str(bag), str(LAYOUT), "-o", str(out)]) == 0
+    # Named without .npz (numpy adds it): the line printed names the file written.
+    assert main_presses([str(bag), str(LAYOUT), "-o", str(tmp_path / "session")]) == 0
+    assert capsys.readouterr().out.startswith(f"{out}: ")
     z = np.load(out)
     n = len(z["force"])
     assert n > 10 and z["deflection"].shape == (n, 72) and z["position"].shape == (n, 2)

@@ -365,11 +365,13 @@ def main_presses(argv: list[str] | None = None) -> int:
             raise CalibrationError(f"{args.layout}: several patches ({names}): pass --patch")
         patch = lay.patch(args.patch) if args.patch else lay.patches[0]
         arrays = presses_from_bag(args.bag, patch, min_force=args.min_force)
-        np.savez(args.out, **arrays)
+        # (numpy adds .npz to a name without it: say the file that is written)
+        out = args.out if args.out.suffix == ".npz" else args.out.with_name(args.out.name + ".npz")
+        np.savez(out, **arrays)
     except (CalibrationError, LayoutError, KeyError, OSError) as e:
         print(f"ERROR: {e}", file=sys.stderr)
         return 1
-    print(f"{args.out}: {len(arrays['force'])} presses from {args.bag}")
+    print(f"{out}: {len(arrays['force'])} presses from {args.bag}")
     return 0
 
 
