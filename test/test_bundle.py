@@ -220,3 +220,17 @@ def test_save_replaces_atomically_and_rejects_nan(tmp_path):
     assert not (tmp_path / "q").exists() and [f.name for f in tmp_path.iterdir()] == ["p"]
     with pytest.raises(ValueError, match="needs key 'patch'"):
         save_bundle(tmp_path / "r", {}, {})
+
+
+@pytest.mark.parametrize("key", ["params", "traction_grid", "deflection_grid"])
+def test_a_manifest_edited_by_hand_is_a_bundle_error_naming_it(bundle, key):
+    """A manifest key removed by hand passed the loader and ended in a bare KeyError in the
+    reconstructor: a BundleCorruptError naming the bundle and the key."""
+    from tactile_contact.inverse.reconstruction import Reconstructor
+
+    m = _manifest(bundle)
+    assert key in m
+    del m[key]
+    _write(bundle, m)
+    with pytest.raises(BundleCorruptError, match=rf"{bundle}: .*missing key '{key}'"):
+        Reconstructor.from_bundle(bundle)

@@ -44,7 +44,7 @@ from tactile_contact.inverse.readings import Frame, ReadingModel
 from tactile_contact.inverse.result import ContactResult, Request, ResultMaker
 from tactile_contact.inverse.temporal import FrameFusion, reconstructor_fusion
 from tactile_contact.model.grids import Grid
-from tactile_contact.offline.bundle import Bundle, load_bundle
+from tactile_contact.offline.bundle import Bundle, BundleCorruptError, load_bundle
 
 __all__ = ["ContactResult", "Followed", "Reconstructor"]
 
@@ -223,7 +223,17 @@ class Reconstructor:
         """Load the bundle at ``path`` (errors:
         :class:`tactile_contact.offline.bundle.BundleError`); ``follow`` and ``fuse`` as the
         attributes ``follow`` and ``fusion``."""
-        return cls(load_bundle(path, expected_layout, verify=verify), follow=follow, fuse=fuse)
+        bundle = load_bundle(path, expected_layout, verify=verify)
+        try:
+            return cls(bundle, follow=follow, fuse=fuse)
+        except (KeyError, IndexError, TypeError, ValueError) as exc:
+            # A manifest edited by hand (a key removed, a value of another type) or arrays
+            # that disagree with it pass the loader's checks and fail here: one clear error.
+            what = f"missing key {exc}" if isinstance(exc, KeyError) else f"{exc}"
+            raise BundleCorruptError(
+                f"{path}: the bundle's manifest and arrays do not make a reconstructor "
+                f"({type(exc).__name__}: {what}); rebuild it with tactile-contact-build"
+            ) from exc
 
     @property
     def n_taxels(self) -> int:
