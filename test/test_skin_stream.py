@@ -365,3 +365,11 @@ def test_a_period_lost_to_a_half_received_pair_is_one_drop(lost: int) -> None:
     assert v["missed_periods"] == 1
     assert v["incomplete_periods"] + v["orphan_b"] == 1
     assert v["drops"] == 1
+
+
+def test_a_pair_window_as_long_as_the_period_is_refused() -> None:
+    """A 100 Hz skin (period_ms 10) left with the default 10 ms pair window would pair a frame
+    A whose B was lost with the next period's B."""
+    with pytest.raises(ValueError, match=r"pair_window_s 10 ms must be below the period \(10 ms"):
+        make_stream(period_s=0.01, pair_window_s=0.01)
+    make_stream(period_s=0.01, pair_window_s=0.004)

@@ -164,6 +164,15 @@ class SkinStream:
                 raise ValueError(f"{name} must be finite and > 0, got {v!r}")
         if not patches:
             raise ValueError("patches must name at least one patch")
+        if pair_window_s >= period_s:
+            # A frame A waits this long for its B: the next period's B (one period later)
+            # must fall outside it, or a lost B pairs its A with the next period's.
+            raise ValueError(
+                f"pair_window_s {pair_window_s * 1e3:g} ms must be below the period "
+                f"({period_s * 1e3:g} ms; half of it leaves room for jitter): frames of the "
+                "next period would be paired with this one's (skin_driver: pair_window_ms "
+                "below period_ms)"
+            )
         self.max_wait_s = max_wait_s
         self.module_timeout_s = module_timeout_s
         self.period_s = period_s

@@ -59,7 +59,7 @@ PARAMETERS: tuple[tuple[str, Any, str, dict[str, Any]], ...] = (
      {"unit": "ms", "float_range": (1.0, 10_000.0)}),
     ("module_timeout_ms", 500.0, "a module silent this long is not waited for (silent)",
      {"unit": "ms", "float_range": (1.0, 600_000.0)}),
-    ("pair_window_ms", 10.0, "largest frame A to frame B gap of one period",
+    ("pair_window_ms", 10.0, "largest frame A to frame B gap of one period (below period_ms)",
      {"unit": "ms", "float_range": (0.0, 1000.0)}),
     ("duplicate_window_ms", 5.0, "identical frames closer than this are duplicates",
      {"unit": "ms", "float_range": (0.0, 1000.0)}),
