@@ -373,3 +373,16 @@ def test_a_pair_window_as_long_as_the_period_is_refused() -> None:
     with pytest.raises(ValueError, match=r"pair_window_s 10 ms must be below the period \(10 ms"):
         make_stream(period_s=0.01, pair_window_s=0.01)
     make_stream(period_s=0.01, pair_window_s=0.004)
+
+
+def test_readings_pending_at_a_pause_are_dropped_not_published_with_the_next_period() -> None:
+    """The driver deactivated with half a period read: without drop_pending the next period's
+    first reading published those old readings (old stamps) in a message of their own."""
+    s = make_stream(max_wait_s=10.0)
+    feed_period(s, 0)
+    feed_period(s, 1, tris=[0, 1, 2])  # pending: modules 0..2 of period 1
+    assert s.drop_pending() == 3
+    out = feed_period(s, 3)  # after the pause: one message, every module of period 3
+    assert len(out) == 1 and fresh_modules(out[0]) == list(range(M))
+    assert out[0].stamp == pytest.approx(100.0 + 3 * P + 5e-4)
+    assert s.drop_pending() == 0

@@ -424,6 +424,20 @@ class SkinStream:
             tares=self.tares,
         )
 
+    def drop_pending(self) -> int:
+        """Forget the module readings waiting for their patch's message (how many): after a
+        pause (the driver deactivated) they would come out with the next period's, with old
+        stamps. The assembler's half pairs are its own (:meth:`PeriodAssembler.reset`)."""
+        dropped = 0
+        for st in self._patches:
+            for m in st.modules:
+                dropped += m.fresh
+                m.fresh = False
+            st.n_fresh = 0
+            st.first_pending = st.oldest_pending_stamp = math.inf
+            st.newest_stamp = -math.inf
+        return dropped
+
     def tare(self) -> tuple[list[str], list[str]]:
         """Tare every patch: (patches tared, patches with a module not heard yet — their
         other modules tared); readings made from now on carry the new count in

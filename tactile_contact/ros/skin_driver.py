@@ -392,10 +392,16 @@ class SkinDriver(LifecycleNode):
             return result
         try:
             self._stop.clear()
-            for link in self._links:
+            for link in self._links:  # (every bus drained before any receive thread runs)
                 if self._params["send_config"] and link.bus is not None:
                     self._send_config(link)
                 self._drain(link)
+            replay = any(isinstance(link.bus, ReplayBus) for link in self._links)
+            with self._batch_lock:  # a batch begun before the pause: its readings are old
+                held = len(self._batcher.take()) if self._batcher and not replay else 0
+            if held:
+                self.get_logger().info(f"dropped a batch of {held} readings made before the pause")
+            for link in self._links:
                 link.finished_logged = False
                 link.thread = threading.Thread(
                     target=self._receive_loop,
@@ -420,9 +426,12 @@ class SkinDriver(LifecycleNode):
         while dropped < 1_000_000 and link.bus.recv(0.0) is not None:
             dropped += 1
         link.stream.assembler.reset()
-        if dropped:
+        with self._lock:  # readings made before the pause, waiting for their patch's message
+            readings = link.stream.drop_pending()
+        if dropped or readings:
             self.get_logger().info(
                 f"dropped {dropped} frames queued while inactive on {self._bus_name(link)}"
+                + (f" and {readings} readings made before it" if readings else "")
             )
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
