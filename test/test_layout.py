@@ -211,6 +211,9 @@ def test_duplicate_address_across_patches_and_names(doc):
     second = copy.deepcopy(doc["patches"][0])
     second["name"] = "other"
     doc["patches"].append(second)
+    with pytest.raises(LayoutError, match=r"patches\[1\]\.frame_id: frame 'skin_hexagon' is also"):
+        parse_layout(doc, "x.yaml")  # (a copied patch keeps its frame: drawn on the first)
+    second["frame_id"] = "skin_other"
     with pytest.raises(LayoutError, match=r"patches\[1\]\.modules\[0\]: duplicate CAN address"):
         parse_layout(doc, "x.yaml")
     second["name"] = "hexagon"

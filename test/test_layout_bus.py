@@ -20,7 +20,7 @@ def doc() -> dict:
 
 def _two_patches(doc: dict, first: str, second: str) -> dict:
     other = copy.deepcopy(doc["patches"][0])
-    other["name"] = "other"
+    other["name"], other["frame_id"] = "other", "skin_other"
     doc["patches"][0]["bus"] = first
     other["bus"] = second
     doc["patches"].append(other)

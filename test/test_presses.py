@@ -101,7 +101,7 @@ def test_a_text_file_named_npz_is_said_to_be_text(tmp_path, patch):
 def test_presses_refuses_to_guess_the_patch(tmp_path, capsys):
     doc = yaml.safe_load(LAYOUT.read_text())
     second = yaml.safe_load(yaml.safe_dump(doc["patches"][0]))
-    second["name"] = "forearm"
+    second["name"], second["frame_id"] = "forearm", "skin_forearm"
     for m in second["modules"]:
         m["board"] = 1
     doc["patches"].insert(0, second)

@@ -479,6 +479,7 @@ def parse_layout(data: Any, source: str = "<memory>") -> Layout:
         raise c.err("patches", "expected a non-empty list of patches")
     patches = tuple(_parse_patch(c, p, f"patches[{i}]") for i, p in enumerate(raw))
     names: dict[str, int] = {}
+    frames: dict[str, int] = {}
     addr: dict[tuple[str, int, int], str] = {}
     for i, p in enumerate(patches):
         if p.name in names:
@@ -487,6 +488,15 @@ def parse_layout(data: Any, source: str = "<memory>") -> Layout:
                 f"duplicate patch name {p.name!r} (also patches[{names[p.name]}])",
             )
         names[p.name] = i
+        if p.frame_id in frames:
+            # Each patch's readings, maps and markers are in its own frame: two patches in one
+            # frame would be drawn on top of each other (and a URDF cannot place both).
+            raise c.err(
+                f"patches[{i}].frame_id",
+                f"frame {p.frame_id!r} is also patches[{frames[p.frame_id]}]'s: each patch "
+                "needs a frame of its own",
+            )
+        frames[p.frame_id] = i
         for k, m in enumerate(p.modules):
             key = (p.bus, m.board, m.triangle)  # addresses are unique on one bus
             if key in addr:
