@@ -76,3 +76,43 @@ def test_a_cleanup_stuck_holding_the_gil_is_dumped_and_ended_by_faulthandler() -
     assert "in destroy_node" in out, out
     assert "still shutting down" not in out, out  # the Python watcher never got the GIL
     assert STUCK_AFTER_S + 1.0 <= took < STUCK_AFTER_S + 8.0, (took, out)
+
+
+_BUSY_NODE = """
+import time
+from tactile_contact.ros.interrupt import catch_interrupts
+catch_interrupts()
+from rclpy.node import Node
+from tactile_contact.ros import common
+
+class Busy(Node):
+    def __init__(self):
+        super().__init__("busy")
+        self.create_timer(0.05, self.work)
+
+    def work(self):
+        print("in the callback", flush=True)
+        t = time.monotonic()
+        while time.monotonic() - t < 1.5:  # a worker's solve under load, held long
+            pass
+
+common.run_node("busy", Busy, [], events=True)
+print("run_node returned", flush=True)
+"""
+
+
+def test_a_ctrl_c_inside_a_busy_callback_ends_the_node_without_a_traceback() -> None:
+    """Ctrl-C on the whole robot's launch, its workers solving: the KeyboardInterrupt was
+    raised inside a subscription callback, and the executor logged it as "[FATAL] Exception in
+    'subscriptions' callback" with a traceback. It is noted while the node spins, the callback
+    finishes, and the node ends quietly."""
+    with NodeProcess([sys.executable, "-c", _BUSY_NODE]) as node:
+        assert node.wait_for_line("in the callback", 60.0), node.output
+        time.sleep(0.2)
+        os.kill(node.proc.pid, signal.SIGINT)
+        code = node.proc.wait(timeout=30.0)
+        assert node.wait_for_line("run_node returned", 5.0), node.output
+    out = node.output
+    assert code == 0, out
+    for text in ("Traceback", "FATAL", "Exception in", "KeyboardInterrupt", "still shutting"):
+        assert text not in out, f"{text!r} printed:\n{out}"

@@ -216,7 +216,11 @@ def diagnostic_status(
 SPIN_STEP_S = 0.1  # a missed wake-up delays the exit by this much, never forever
 
 
-def spin_until_shutdown(executor: Executor, context: Context | None = None) -> None:
+def spin_until_shutdown(
+    executor: Executor,
+    context: Context | None = None,
+    until: Callable[[], bool] | None = None,
+) -> None:
     """Spin ``executor`` until ``context`` (default: rclpy's) is shut down, in bounded steps.
 
     Why not ``executor.spin()``: the EventsExecutor's ignored Ctrl-C (rclpy 9.1), and the
@@ -227,10 +231,11 @@ def spin_until_shutdown(executor: Executor, context: Context | None = None) -> N
     A callback that fails because the context was shut down while it ran (rclpy's SIGINT
     handler does that from another thread: a publish then raises "publisher's context is
     invalid", or InvalidHandle once the entity is destroyed) ends the spin as the shutdown
-    does; any other failure, or one while the context is up, propagates.
+    does; any other failure, or one while the context is up, propagates. ``until``: also
+    end when it says so (run_node: a Ctrl-C noted while the spin defers it).
     """
     ok = (context or rclpy.get_default_context()).ok
-    while ok():
+    while ok() and not (until is not None and until()):
         try:
             executor.spin_once(timeout_sec=SPIN_STEP_S)
         except ExternalShutdownException:
@@ -302,7 +307,12 @@ def run_node(
             else:
                 executor = SingleThreadedExecutor()
             executor.add_node(node)
-            spin_until_shutdown(executor)
+            # A Ctrl-C while spinning is noted, not raised: raised inside a busy callback (a
+            # worker's solve) the executor logged it as a FATAL "Exception in 'subscriptions'
+            # callback" with a traceback. rclpy's handler shuts the context down, which ends
+            # the spin after the callback; ``interrupted`` ends it if that did not.
+            with deferred():
+                spin_until_shutdown(executor, until=interrupted)
         except ExternalShutdownException:
             pass
         except Exception as exc:
