@@ -116,3 +116,32 @@ def test_a_ctrl_c_inside_a_busy_callback_ends_the_node_without_a_traceback() -> 
     assert code == 0, out
     for text in ("Traceback", "FATAL", "Exception in", "KeyboardInterrupt", "still shutting"):
         assert text not in out, f"{text!r} printed:\n{out}"
+
+
+_SLOW_START = """
+import time
+from tactile_contact.ros.interrupt import catch_interrupts
+catch_interrupts()
+from rclpy.node import Node
+from tactile_contact.ros import common
+
+class SlowStart(Node):
+    def __init__(self):
+        super().__init__("slow")
+        print("building", flush=True)
+        time.sleep(30.0)  # a simulator building a large patch's model on a busy machine
+
+common.run_node("slow_start", SlowStart, [])
+"""
+
+
+def test_a_ctrl_c_while_the_node_is_built_says_it_is_still_starting() -> None:
+    """The whole robot's simulators take minutes to build on 2 cores; a Ctrl-C meanwhile ended
+    them with "still shutting down ... (stuck in a library's cleanup)": it says starting."""
+    with NodeProcess([sys.executable, "-c", _SLOW_START]) as node:
+        assert node.wait_for_line("building", 60.0), node.output
+        os.kill(node.proc.pid, signal.SIGINT)
+        code = node.proc.wait(timeout=30.0)
+    assert code == 0, node.output
+    assert "slow_start: still starting 4 s after the Ctrl-C (building the node" in node.output
+    assert "still shutting down" not in node.output

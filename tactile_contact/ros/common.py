@@ -54,6 +54,7 @@ from tactile_contact.ros.interrupt import (
     interrupted,
     name_the_node,
     shutdown_finished,
+    starting,
 )
 
 #: High-rate streams (taxels, grids): best effort, keep last 5, volatile (the ROS sensor profile).
@@ -290,7 +291,7 @@ def run_node(
                 return
             rclpy.init(args=args)
             initialized = True
-            with deferred():  # (a KeyboardInterrupt inside numba's loading crashed it)
+            with deferred(), starting():  # (a KeyboardInterrupt in numba's loading crashed it)
                 node = factory()
             if interrupted():  # a Ctrl-C while the node was built
                 return

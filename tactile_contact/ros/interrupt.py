@@ -33,6 +33,7 @@ _cleaned_up = threading.Event()  # run_node's cleanup returned: the Python watch
 _interrupted = threading.Event()  # a SIGINT came (whether or not its KeyboardInterrupt landed)
 _deferred = threading.Event()  # while set, a SIGINT is noted, not raised (see deferred())
 _node_name = ["node"]  # the name run_node runs, for the stuck message
+_starting = threading.Event()  # run_node is building the node (the stuck message says so)
 _watcher: list[threading.Thread] = []
 
 
@@ -58,16 +59,32 @@ def exit_if_stuck(code: int = 0, after_s: float = STUCK_AFTER_S) -> None:
         name = _node_name[0]  # (armed by a SIGINT in the imports, before run_node named it)
         frame = sys._current_frames().get(main) if main is not None else None
         where = "".join(traceback.format_stack(frame)) if frame is not None else "(not found)\n"
-        sys.stderr.write(
-            f"WARNING: {name}: still shutting down {after_s:.0f} s after it began (stuck in a "
-            f"library's cleanup); exiting now. Its main thread was in:\n{where}"
-        )
+        if _starting.is_set():  # (a Ctrl-C while the node was built: it is not stuck)
+            what = (
+                f"still starting {after_s:.0f} s after the Ctrl-C (building the node: its "
+                "model takes long on a busy machine)"
+            )
+        else:
+            what = (
+                f"still shutting down {after_s:.0f} s after it began (stuck in a library's cleanup)"
+            )
+        sys.stderr.write(f"WARNING: {name}: {what}; exiting now. Its main thread was in:\n{where}")
         sys.stderr.flush()
         os._exit(code)
 
     _watcher.append(threading.Thread(target=watch, name="exit_if_stuck", daemon=True))
     _watcher[0].start()
     faulthandler.dump_traceback_later(after_s + 1.0, exit=True)
+
+
+@contextlib.contextmanager
+def starting() -> Iterator[None]:
+    """run_node builds the node in this block (the stuck message says it is still starting)."""
+    _starting.set()
+    try:
+        yield
+    finally:
+        _starting.clear()
 
 
 def name_the_node(name: str) -> None:
