@@ -159,13 +159,15 @@ def test_presses_from_the_shipped_bag(tmp_path, capsys):
     n = len(z["force"])
     assert n > 10 and z["deflection"].shape == (n, 72) and z["position"].shape == (n, 2)
     assert np.all(z["force"] > 0) and z["indenter"].shape == (n,)
-    # The file is what the calibrate command takes. The session's truth messages and frames
-    # fit the response no better than the nominal one (≈ 59 % of the readings left either
-    # way, issue 27): the command refuses the bundle and says to check what the presses are.
+    # The file is what the calibrate command takes. The session's single 8-bit frames of
+    # light presses leave ≈ 60 % of the readings either way: its own noise (6.3 µm RMS against
+    # the layout's 6.0 µm model; the simulator's truth is the layout's model). The command
+    # refuses the bundle and says so — not "check positions and units" as it did.
     args = [str(LAYOUT), str(out), "-o", str(tmp_path / "b")]
     assert main(args) == 1
     err = capsys.readouterr().err
-    assert "do not match their readings" in err and "metres in the patch frame" in err
+    assert "about the readings' own noise" in err and "Press harder" in err, err
+    assert "do not match their readings" not in err
     assert main([*args, "--accept-uncertain"]) == 0
 
 

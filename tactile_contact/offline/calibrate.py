@@ -113,6 +113,9 @@ class Calibration:
     named: bool = True
     uncertainty: dict[str, Any] = field(default_factory=dict)
     press_residuals: list[float] = field(default_factory=list)
+    #: The layout's per-taxel compression noise [m] (solver.noise): a residual about this
+    #: large is the readings' own noise, not a mismatch (the report's advice).
+    noise: float = 0.0
 
     def metadata(self) -> dict[str, Any]:
         d = asdict(self)
@@ -247,6 +250,7 @@ def calibrate(
         named=not free,
         uncertainty=unc,
         press_residuals=[round(float(v), 4) for v in per_press],
+        noise=float(patch.solver.noise),
     )
 
 

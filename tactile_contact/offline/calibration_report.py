@@ -25,6 +25,26 @@ FEW_PRESSES = 24
 OUTLIER = 3.0
 
 
+#: A residual at most this many times the layout's noise model is the readings' own noise.
+AT_NOISE = 1.25
+
+
+def at_noise(cal: Calibration) -> bool:
+    """Whether the fit leaves about the readings' own noise (then a high relative residual
+    says the presses read little above it, not that they do not match their readings)."""
+    return cal.noise > 0 and cal.residual <= AT_NOISE * cal.noise
+
+
+def _noise_words(cal: Calibration) -> str:
+    return (
+        f"The fit leaves {cal.residual * 1e6:.1f} µm RMS, about the readings' own noise (the "
+        f"layout's noise model: {cal.noise * 1e6:.1f} µm): the presses read too little above "
+        "it to pin the response (a simulated session's 8-bit readings do, whatever the model). "
+        "Press harder (1–3 N), or average each press over more frames: a rig's session holding "
+        "each press still"
+    )
+
+
 def grade(cal: Calibration) -> str:
     """ "good", "fair" or "poor" (module docstring)."""
     rho = cal.relative_residual
@@ -43,7 +63,9 @@ def unidentified_message(cal: Calibration, limit: float) -> str:
         f"each other (correlation {c:+.2f}); forces from such a bundle could be off by "
         f"{max(sf, sg):.0%} or more. "
     )
-    if grade(cal) != "good" and cal.relative_residual > 0.8 * cal.nominal_relative_residual:
+    if grade(cal) != "good" and at_noise(cal):
+        why = _noise_words(cal)
+    elif grade(cal) != "good" and cal.relative_residual > 0.8 * cal.nominal_relative_residual:
         why = (
             f"The fit leaves {cal.relative_residual:.0%} of the readings unexplained, about as "
             f"much as the nominal response ({cal.nominal_relative_residual:.0%}): the presses "
@@ -138,7 +160,9 @@ def report(cal: Calibration, limit: float) -> list[str]:
             f"NOT IDENTIFIED (±{_force_sigma(u, cal.named):.1%} > ±{limit:.0%}): "
             + ("name each press's indenter" if not cal.named else "add presses")
         )
-    if g != "good" and rho > 0.8 * nom:
+    if g != "good" and at_noise(cal):
+        improve.append(_noise_words(cal)[0].lower() + _noise_words(cal)[1:])
+    elif g != "good" and rho > 0.8 * nom:
         improve.append(
             "the fit barely improves on the nominal response: the presses' positions or forces "
             "do not match their readings: check that positions are in metres in the patch frame, "
