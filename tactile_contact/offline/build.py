@@ -27,13 +27,7 @@ from numpy.typing import NDArray
 from tactile_contact import __version__
 from tactile_contact.model.grids import Grid, disc_quadrature, skin_grid
 from tactile_contact.model.layout import LayoutError, PatchLayout, load_layout
-from tactile_contact.offline.bundle import (
-    BundleError,
-    bundle_status,
-    replacing,
-    save_bundle,
-    stale_reason,
-)
+from tactile_contact.offline.bundle import BundleError, bundle_check, replacing, save_bundle
 
 #: Disc quadrature of the taxel average (radii × angles). The electrode edge cuts through cells,
 #: so convergence is slow: against 12 × 32 points the largest entry error is 6 % with 3 × 8,
@@ -377,14 +371,13 @@ def build_layout(
     status: dict[str, str] = {}
     todo = []
     for p in chosen:
-        st = bundle_status(out / p.name, p)
+        st, why = bundle_check(out / p.name, p)
         if st == "up-to-date" and not force:
             status[p.name] = "up-to-date"
             continue
         todo.append(p)
         if st != "missing":
-            why = "--force" if st == "up-to-date" else stale_reason(out / p.name, p)
-            why = replacing(out / p.name, source, why, force)
+            why = replacing(out / p.name, source, why or "--force", force)
             if replaced is not None:
                 replaced[p.name] = why
     if not todo:

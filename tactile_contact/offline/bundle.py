@@ -345,19 +345,16 @@ def replacing(path: str | Path, source: str | Path, reason: str, force: bool = F
 
 def bundle_status(path: str | Path, layout: Any) -> str:
     """``"missing"``, ``"up-to-date"`` or why it must be rebuilt (for the build tool)."""
-    try:
-        load_bundle(path, layout, verify=True)
-    except BundleNotFoundError:
-        return "missing"
-    except BundleError as exc:
-        return f"rebuild: {type(exc).__name__}"
-    return "up-to-date"
+    return bundle_check(path, layout)[0]
 
 
-def stale_reason(path: str | Path, layout: Any) -> str:
-    """Why the bundle at ``path`` does not load for ``layout`` ("" when it does)."""
+def bundle_check(path: str | Path, layout: Any) -> tuple[str, str]:
+    """(:func:`bundle_status`, the loader's message why the bundle does not load for
+    ``layout``: "" when it does)."""
     try:
         load_bundle(path, layout, verify=True)
+    except BundleNotFoundError as exc:
+        return "missing", str(exc)
     except BundleError as exc:
-        return str(exc)
-    return ""
+        return f"rebuild: {type(exc).__name__}", str(exc)
+    return "up-to-date", ""
