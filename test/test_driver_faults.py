@@ -472,3 +472,24 @@ def test_socketcan_errors_that_mean_the_interface_is_gone(exc: Exception, gone: 
     from tactile_contact.canbus.bus_health import interface_gone
 
     assert interface_gone(exc) == gone
+
+
+def test_a_backend_raising_an_unexpected_type_is_reopened_like_any_bus_error(
+    harness_factory: Any,  # noqa: F811
+) -> None:
+    """A backend whose receive raises something other than CanError/OSError/ValueError (a
+    vendor library's own exception) was counted as an internal error forever, never reopened.
+    (The fault is injected into the real python-can virtual bus's recv.)"""
+    h = harness_factory(reconnect_after_errors=3, reconnect_interval_s=0.2)
+    h.wait_matched()
+    bus = h.driver._links[0].bus
+
+    def broken(timeout: float | None = None) -> can.Message | None:
+        raise RuntimeError("vendor library: device handle invalid")
+
+    bus.recv = broken
+    assert h.spin_until(lambda: latest(h, "CAN bus", "reconnects") == "1", 5.0), h.diags[-1:]
+    assert h.driver._links[0].bus is not bus  # a fresh bus
+    n = len(h.taxels)
+    h.send(p.messages for p in simulator(seed=4).periods(None, 0.4))
+    assert h.spin_until(lambda: len(h.taxels) >= n + 10, 5.0), "no data after the reopen"

@@ -556,10 +556,12 @@ class SkinDriver(LifecycleNode):
             timeout = min(timeout, max(0.0, batcher.due - time.monotonic()))
         try:
             msg = bus.recv(timeout)
-        except (can.CanError, OSError, ValueError) as exc:
+        except Exception as exc:  # the backend's: python-can's interfaces raise many types
             # OSError: a socketcan interface down (ENETDOWN) or removed (ENODEV); CanError:
             # python-can's own (a closed bus, an adapter unplugged); ValueError: a backend
-            # that failed to parse what the adapter sent.
+            # that failed to parse what the adapter sent; others (a vendor library's own
+            # errors, a bug in a plugin interface) count toward a reopen the same way, which
+            # gives the backend a fresh handle, instead of looping on the same error.
             with self._lock:
                 reconnect = policy.error(exc)
             if self._due(f"bus error {link.name}"):
