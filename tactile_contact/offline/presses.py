@@ -259,7 +259,7 @@ def _check_readings(
         )
     # Under the press: the reading of largest magnitude within SIGN_REACH_M of its position
     # (anywhere else, baseline offsets and the bulge ring around a light press read as much
-    # as its peak: a recorded session's presses had their largest |reading| negative in 87
+    # as its peak: the shipped session's presses have their largest |reading| negative in 11
     # of 93).
     under = np.where((dist <= SIGN_REACH_M) & valid, d, 0.0)
     sign = np.sign(under[np.arange(len(d)), np.abs(under).argmax(axis=1)])
@@ -279,6 +279,7 @@ def presses_from_bag(bag: Path, patch: PatchLayout, *, min_force: float = 0.05) 
 
     Errors (:class:`CalibrationError`) name the bag and what is missing.
     """
+    from tactile_contact.canbus.baseline import STATUS_CONTACT
     from tactile_contact.model.sensor import delta_c_to_compression
     from tactile_contact.ros.bag import read_messages
 
@@ -310,7 +311,11 @@ def presses_from_bag(bag: Path, patch: PatchLayout, *, min_force: float = 0.05) 
         where = {int(t): i for i, t in enumerate(f.taxel_ids)}
         idx = np.array([where.get(int(t), -1) for t in ids])
         dc = np.asarray(f.delta_c, dtype=np.float64)[np.maximum(idx, 0)]
-        ok = (idx >= 0) & np.isfinite(dc) & (np.asarray(f.status)[np.maximum(idx, 0)] == 0)
+        # Any flag but contact excludes a taxel; the contact flag marks the taxels pressed
+        # (dropping them, as `== 0` did, left 82 of the shipped session's 93 presses without
+        # the taxel under them).
+        flags = np.asarray(f.status)[np.maximum(idx, 0)] & ~np.uint8(STATUS_CONTACT)
+        ok = (idx >= 0) & np.isfinite(dc) & (flags == 0)
         d = delta_c_to_compression(np.where(ok, dc, 0.0), h, s.epsilon_r, s.area)
         deflection.append(np.where(ok, d, np.nan))
         valid.append(ok)
