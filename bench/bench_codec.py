@@ -136,7 +136,7 @@ def main() -> None:
     ).patches[0]
 
     def driver_core() -> None:
-        stream = SkinStream([patch], period_s=1.0 / RATE_HZ)
+        stream = SkinStream([patch], period_s=1.0 / RATE_HZ, pair_window_s=0.4 / RATE_HZ)
         pubs = 0
         for m in msgs:
             pubs += len(stream.feed(m, now=m.timestamp))

@@ -144,6 +144,7 @@ def driver_node(seconds: float, path: Path) -> dict[str, float]:
         "layout": str(path),
         "period_ms": 10,
         "max_wait_ms": 10.0,
+        "pair_window_ms": 4.0,  # (below the 10 ms period: SkinStream refuses one as long)
     }
     node = SkinDriver(
         context=ctx, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]
