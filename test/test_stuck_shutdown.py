@@ -79,7 +79,7 @@ def test_a_cleanup_stuck_holding_the_gil_is_dumped_and_ended_by_faulthandler() -
 
 
 _BUSY_NODE = """
-import time
+import sys, time
 from tactile_contact.ros.interrupt import catch_interrupts
 catch_interrupts()
 from rclpy.node import Node
@@ -93,7 +93,7 @@ class Busy(Node):
     def work(self):
         print("in the callback", flush=True)
         t = time.monotonic()
-        while time.monotonic() - t < 1.5:  # a worker's solve under load, held long
+        while time.monotonic() - t < float(sys.argv[1]):  # a worker's solve, held long
             pass
 
 common.run_node("busy", Busy, [], events=True)
@@ -106,7 +106,7 @@ def test_a_ctrl_c_inside_a_busy_callback_ends_the_node_without_a_traceback() -> 
     raised inside a subscription callback, and the executor logged it as "[FATAL] Exception in
     'subscriptions' callback" with a traceback. It is noted while the node spins, the callback
     finishes, and the node ends quietly."""
-    with NodeProcess([sys.executable, "-c", _BUSY_NODE]) as node:
+    with NodeProcess([sys.executable, "-c", _BUSY_NODE, "1.5"]) as node:
         assert node.wait_for_line("in the callback", 60.0), node.output
         time.sleep(0.2)
         os.kill(node.proc.pid, signal.SIGINT)
@@ -116,6 +116,22 @@ def test_a_ctrl_c_inside_a_busy_callback_ends_the_node_without_a_traceback() -> 
     assert code == 0, out
     for text in ("Traceback", "FATAL", "Exception in", "KeyboardInterrupt", "still shutting"):
         assert text not in out, f"{text!r} printed:\n{out}"
+
+
+def test_a_callback_that_outlasts_the_watcher_is_named_not_called_a_stuck_cleanup() -> None:
+    """The Ctrl-C waits for the callback running; one still running 4 s later ends the process
+    (exit 0) with what it is: a callback, its work unfinished — not "stuck in a library's
+    cleanup" (a review found the old words on an 8 s callback)."""
+    with NodeProcess([sys.executable, "-c", _BUSY_NODE, "8"]) as node:
+        assert node.wait_for_line("in the callback", 60.0), node.output
+        time.sleep(0.2)
+        start = time.monotonic()
+        os.kill(node.proc.pid, signal.SIGINT)
+        code = node.proc.wait(timeout=30.0)
+        took = time.monotonic() - start
+    assert code == 0, node.output
+    assert "busy: still in a callback 4 s after the Ctrl-C" in node.output, node.output
+    assert "still shutting down" not in node.output and took < 7.5, (took, node.output)
 
 
 _SLOW_START = """

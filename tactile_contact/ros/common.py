@@ -54,6 +54,7 @@ from tactile_contact.ros.interrupt import (
     interrupted,
     name_the_node,
     shutdown_finished,
+    spinning,
     starting,
 )
 
@@ -311,8 +312,9 @@ def run_node(
             # A Ctrl-C while spinning is noted, not raised: raised inside a busy callback (a
             # worker's solve) the executor logged it as a FATAL "Exception in 'subscriptions'
             # callback" with a traceback. rclpy's handler shuts the context down, which ends
-            # the spin after the callback; ``interrupted`` ends it if that did not.
-            with deferred():
+            # the spin after the callback; ``interrupted`` ends it if that did not. A callback
+            # still running STUCK_AFTER_S later ends the process (exit_if_stuck says so).
+            with deferred(), spinning():
                 spin_until_shutdown(executor, until=interrupted)
         except ExternalShutdownException:
             pass

@@ -34,6 +34,7 @@ _interrupted = threading.Event()  # a SIGINT came (whether or not its KeyboardIn
 _deferred = threading.Event()  # while set, a SIGINT is noted, not raised (see deferred())
 _node_name = ["node"]  # the name run_node runs, for the stuck message
 _starting = threading.Event()  # run_node is building the node (the stuck message says so)
+_spinning = threading.Event()  # run_node spins the node: a callback may still be running
 _watcher: list[threading.Thread] = []
 
 
@@ -64,6 +65,11 @@ def exit_if_stuck(code: int = 0, after_s: float = STUCK_AFTER_S) -> None:
                 f"still starting {after_s:.0f} s after the Ctrl-C (building the node: its "
                 "model takes long on a busy machine)"
             )
+        elif _spinning.is_set():  # (the Ctrl-C waits for the callback running to return)
+            what = (
+                f"still in a callback {after_s:.0f} s after the Ctrl-C (its work unfinished, "
+                "the node's cleanup skipped)"
+            )
         else:
             what = (
                 f"still shutting down {after_s:.0f} s after it began (stuck in a library's cleanup)"
@@ -85,6 +91,16 @@ def starting() -> Iterator[None]:
         yield
     finally:
         _starting.clear()
+
+
+@contextlib.contextmanager
+def spinning() -> Iterator[None]:
+    """run_node spins the node in this block (the stuck message says a callback runs)."""
+    _spinning.set()
+    try:
+        yield
+    finally:
+        _spinning.clear()
 
 
 def name_the_node(name: str) -> None:
