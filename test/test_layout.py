@@ -213,6 +213,12 @@ def test_duplicate_address_across_patches_and_names(doc):
     doc["patches"].append(second)
     with pytest.raises(LayoutError, match=r"patches\[1\]\.frame_id: frame 'skin_hexagon' is also"):
         parse_layout(doc, "x.yaml")  # (a copied patch keeps its frame: drawn on the first)
+    # side by side in one frame (one sheet on two buses): fine
+    beside = copy.deepcopy(second)
+    beside["bus"] = "can9"
+    for m in beside["modules"]:
+        m["position"] = [m["position"][0] + 0.1, m["position"][1]]
+    assert len(parse_layout({**doc, "patches": [doc["patches"][0], beside]}).patches) == 2
     second["frame_id"] = "skin_other"
     with pytest.raises(LayoutError, match=r"patches\[1\]\.modules\[0\]: duplicate CAN address"):
         parse_layout(doc, "x.yaml")

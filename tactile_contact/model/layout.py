@@ -489,14 +489,21 @@ def parse_layout(data: Any, source: str = "<memory>") -> Layout:
             )
         names[p.name] = i
         if p.frame_id in frames:
-            # Each patch's readings, maps and markers are in its own frame: two patches in one
-            # frame would be drawn on top of each other (and a URDF cannot place both).
-            raise c.err(
-                f"patches[{i}].frame_id",
-                f"frame {p.frame_id!r} is also patches[{frames[p.frame_id]}]'s: each patch "
-                "needs a frame of its own",
+            # Two patches may share a frame (one sheet split over two buses), side by side;
+            # taxels of both at one place are a copy left in the first's frame, drawn on it.
+            j = frames[p.frame_id]
+            a, b = patches[j].taxel_xy(), p.taxel_xy()
+            gap = float(np.sqrt(((a[:, None, :] - b[None, :, :]) ** 2).sum(-1).min()))
+            limit = max(
+                MIN_TAXEL_SEPARATION, p.sensor.taxel_radius + patches[j].sensor.taxel_radius
             )
-        frames[p.frame_id] = i
+            if gap < limit:
+                raise c.err(
+                    f"patches[{i}].frame_id",
+                    f"frame {p.frame_id!r} is also patches[{j}]'s, and their taxels overlap "
+                    f"({gap * 1e3:.2f} mm apart): a copied patch? give it a frame of its own",
+                )
+        frames.setdefault(p.frame_id, i)
         for k, m in enumerate(p.modules):
             key = (p.bus, m.board, m.triangle)  # addresses are unique on one bus
             if key in addr:
