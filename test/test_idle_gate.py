@@ -332,3 +332,15 @@ def test_the_driver_sends_an_untouched_patch_every_fifth_period(ros_context: obj
         executor.shutdown()
         node.destroy_node()
         listener.destroy_node()
+
+
+def test_a_float64_reading_just_above_the_limit_is_not_rounded_onto_it() -> None:
+    """Readings of another type are compared as they are (a float32 cast put 2 counts plus a
+    hair on the limit, held back; NumPy's comparison let it through)."""
+    gate = IdleGate(5, 2.0, {"a": COUNT})
+    quiet = PatchFrame("a", "a", 0.0, [0, 1], np.zeros(2, np.float64), b"", bytes(2))
+    for _ in range(4):
+        gate.passes(quiet)  # first sent, then the release, then held
+    limit = float(np.float32(2.0 * COUNT))
+    above = dataclasses.replace(quiet, delta_c=np.array([np.nextafter(limit, 1.0), 0.0]))
+    assert gate.passes(above)

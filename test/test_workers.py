@@ -231,3 +231,17 @@ def test_the_monitor_says_which_worker_of_a_split_was_never_heard(ros_context: o
         assert {v.key: v.value for v in bad.values}["missing"] == "1/2"
     finally:
         node.destroy_node()
+
+
+def test_a_relaunched_split_counts_only_its_own_workers_as_heard() -> None:
+    """Workers relaunched with the same count while the monitor runs on: the indexes the first
+    launch's workers had do not count for the second's (a review found worker 1 of the
+    relaunch never reported)."""
+    roster = Roster()
+    roster.heard(WorkerInfo("a/1", 0, 2, ("p",), 1.0), now=100.0)
+    roster.heard(WorkerInfo("a/2", 1, 2, ("q",), 1.0), now=100.0)
+    assert roster.missing(100.0 + MISSING_AFTER_S) == []
+    roster.forget(5.0, now=150.0)  # both gone (a relaunch); the monitor forgets them
+    roster.heard(WorkerInfo("b/7", 0, 2, ("p",), 2.0), now=200.0)
+    assert roster.missing(200.0 + MISSING_AFTER_S - 1.0) == []  # the split started again
+    assert roster.missing(200.0 + MISSING_AFTER_S) == [(1, 2)]

@@ -142,8 +142,8 @@ class IdleGate:
         elif frame.tares < st.tares:
             self.passed += 1  # made before a tare whose readings were seen already
             return True
-        if dc.dtype != np.float32:
-            dc = dc.astype(np.float32)  # (the mean's type: one compiled kernel)
+        # (float32 from the driver; another type is compared as it is, as NumPy did: a cast
+        # would round a value just above the limit onto it)
         found = _step(dc, st.mean, limit)
         settled, within = bool(found & SETTLED), bool(found & WITHIN)
         # Held back only while quiet with the status of the last sent, which was quiet (so

@@ -420,11 +420,11 @@ class SkinDriver(LifecycleNode):
 
     def _drain(self, link: _Link) -> None:
         """Drop frames queued while inactive (old data must not come out with old stamps)."""
-        if isinstance(link.bus, ReplayBus) or link.bus is None:
+        if isinstance(link.bus, ReplayBus):
             return
         dropped = 0
-        while dropped < 1_000_000 and link.bus.recv(0.0) is not None:
-            dropped += 1
+        while link.bus is not None and dropped < 1_000_000 and link.bus.recv(0.0) is not None:
+            dropped += 1  # (a bus down now has nothing queued; its stream's readings are old)
         link.stream.assembler.reset()
         with self._lock:  # readings made before the pause, waiting for their patch's message
             readings = link.stream.drop_pending()

@@ -184,27 +184,30 @@ class Roster:
 
     silent_after_s: float = SILENT_AFTER_S
     workers: dict[str, WorkerInfo] = field(default_factory=dict)
-    #: Per split (worker count N), when a worker of it was first heard, and the indexes heard.
-    splits: dict[int, tuple[float, set[int]]] = field(default_factory=dict)
+    #: Per split (worker count N): when a worker of it was heard with none of it in the roster
+    #: (the split started, or started again after all of it was forgotten).
+    splits: dict[int, float] = field(default_factory=dict)
 
     def heard(self, info: WorkerInfo, now: float) -> None:
         """Record a heartbeat received at ``now``."""
         info.heard = now
+        if info.count > 0 and not any(w.count == info.count for w in self.workers.values()):
+            self.splits[info.count] = now
         self.workers[info.worker] = info
-        if info.count > 0:
-            self.splits.setdefault(info.count, (now, set()))[1].add(info.index)
 
     def missing(self, now: float, after_s: float = MISSING_AFTER_S) -> list[tuple[int, int]]:
         """(index, count) of the workers of a split never heard, ``after_s`` [s] or more after
         the first of that split was (a split none of whose workers is in the roster any more,
         one relaunched with another count, is not looked at)."""
-        counts = {w.count for w in self.workers.values()}
+        seen: dict[int, set[int]] = {}
+        for w in self.workers.values():  # (the roster's: a relaunch's old ones forgotten)
+            seen.setdefault(w.count, set()).add(w.index)
         return [
             (i, n)
-            for n, (first, seen) in sorted(self.splits.items())
-            if n in counts and now - first >= after_s
+            for n, first in sorted(self.splits.items())
+            if n in seen and now - first >= after_s
             for i in range(n)
-            if i not in seen
+            if i not in seen[n]
         ]
 
     def forget(self, older_than_s: float, now: float) -> list[WorkerInfo]:
