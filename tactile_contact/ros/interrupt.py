@@ -83,24 +83,24 @@ def exit_if_stuck(code: int = 0, after_s: float = STUCK_AFTER_S) -> None:
     faulthandler.dump_traceback_later(after_s + 1.0, exit=True)
 
 
-@contextlib.contextmanager
-def starting() -> Iterator[None]:
+def starting() -> contextlib.AbstractContextManager[None]:
     """run_node builds the node in this block (the stuck message says it is still starting)."""
-    _starting.set()
-    try:
-        yield
-    finally:
-        _starting.clear()
+    return _holding(_starting)
+
+
+def spinning() -> contextlib.AbstractContextManager[None]:
+    """run_node spins the node in this block (the stuck message says a callback runs)."""
+    return _holding(_spinning)
 
 
 @contextlib.contextmanager
-def spinning() -> Iterator[None]:
-    """run_node spins the node in this block (the stuck message says a callback runs)."""
-    _spinning.set()
+def _holding(flag: threading.Event) -> Iterator[None]:
+    """``flag`` set for the block (cleared however it ends)."""
+    flag.set()
     try:
         yield
     finally:
-        _spinning.clear()
+        flag.clear()
 
 
 def name_the_node(name: str) -> None:
@@ -132,18 +132,14 @@ def interrupt_once(signum: int, frame: Any) -> None:
             raise KeyboardInterrupt
 
 
-@contextlib.contextmanager
-def deferred() -> Iterator[None]:
+def deferred() -> contextlib.AbstractContextManager[None]:
     """A SIGINT in this block raises no KeyboardInterrupt (:func:`interrupted` says it came;
     rclpy's own handler still shuts the context down). Why: run_node builds the node in one,
     because a KeyboardInterrupt raised inside numba while it loaded a cached kernel crashed
     the process (SIGSEGV in numba's codegen.set_env, 0.07 s after the SIGINT; a double free at
-    exit another time): about once in 40–80 SIGINTs timed to land in the build."""
-    _deferred.set()
-    try:
-        yield
-    finally:
-        _deferred.clear()
+    exit another time): about once in 40–80 SIGINTs timed to land in the build; and spins it
+    in one (raised inside a busy callback, the executor logged it as FATAL)."""
+    return _holding(_deferred)
 
 
 def catch_interrupts() -> None:
