@@ -33,8 +33,8 @@ frame joins the window, and the window is solved again when its length reaches 2
 … 50 frames and then every ``resolve_every`` frames; each such solve looks back over the
 window's frames for a step along the new result's directions (a change too small for one frame,
 say a light press that began while the patch read nothing) and drops the frames before it. An
-idle patch (the last result has no contact) looks, every frame, at the means of its last 4, 8,
-16 and 32 frames, and solves the one whose energy in some neighbourhood stands out (a χ² level
+idle patch (the last result has no contact) looks, every frame, at the means of its last 4, 6,
+8, 10, 12, 16 and 32 frames, and solves the one whose energy in some neighbourhood stands out (a χ² level
 noise alone reaches in ≈ 1 % of frames; :func:`tactile_contact.inverse._temporal_kernels.
 idle_scan`), and the last 32 every ``idle_every`` frames whatever: a touch too light for one
 frame is found with up to √32 of its single-frame statistic, at the reconstructor's stated
@@ -75,13 +75,18 @@ RESOLVE_AT = frozenset((2, 3, 4, 6, 8, 10, 12, 16, 20, 25, 32, 40, 50))
 RESOLVE_EVERY = 25
 #: An idle patch scans the means of its last IDLE_WINDOWS frames every frame, and solves one
 #: when its neighbourhood energy passes the level noise alone reaches in IDLE_TRIGGER of the
-#: frames (a detector pass, ≈ 20–35 µs), at most every IDLE_HOLDOFF frames, and the last 32
-#: every IDLE_EVERY frames whatever. (A window of 8 alone never finds a press whose frames
+#: frames (a detector pass, ≈ 20–35 µs), at most every IDLE_HOLDOFF + 1 frames, and the last
+#: 32 every IDLE_EVERY frames whatever. (A window of 8 alone never finds a press whose frames
 #: reach a third of the detection threshold; 32 alone dilutes a press that began within it;
-#: cycling 8, 16, 32 every 4 frames missed 7 of 12 presses of 0.5 N after 10 frames.)
-IDLE_WINDOWS = (4, 8, 16, 32)
+#: cycling 8, 16, 32 every 4 frames missed 7 of 12 presses of 0.5 N after 10 frames. Windows
+#: of 4, 8, 16, 32 looked at most every third frame: a press whose mean clears the threshold
+#: from its 8th frame waited for a window of 8 or 16 and the look's turn — bench_time's held
+#: presses ≤ 1 N, five draws each, calibrated, 0.5 N missed after 10 frames: point truth 13 →
+#: 9 of 120, 3 mm electrodes 21 → 11; after 5 frames 46 → 23 and 33 → 28; idle frames
+#: ≈ 1.5 µs dearer.)
+IDLE_WINDOWS = (4, 6, 8, 10, 12, 16, 32)
 IDLE_TRIGGER = 1e-2
-IDLE_HOLDOFF = 2
+IDLE_HOLDOFF = 0
 IDLE_EVERY = 16
 #: With ``defer``, a window's re-solve is left to catch_up only from this many frames on:
 #: a shorter window follows a change (a contact that moves or settles), whose re-solve is
@@ -352,7 +357,7 @@ class FrameFusion:
             elif pick is not None:
                 found = self._idle_solve(*pick, sigma)
                 if found is not None:
-                    self._adopt(found, sigma)
+                    self._adopt(found, sigma, pick[0])
                     return self._resolve(sigma, want_traction, want_deflection)
         self.counts.held += 1
         self.last = "held"
@@ -509,7 +514,7 @@ class FrameFusion:
         if kind == "idle":
             found = self._idle_solve(w, clock, sigma)
             if found is not None:
-                self._adopt(found, sigma)
+                self._adopt(found, sigma, w)
                 self._resolve(sigma, want_t, want_d)
         else:
             self._resolve(sigma, want_t, want_d)
@@ -698,12 +703,20 @@ class FrameFusion:
         self.last = "solved"
         return self.result
 
-    def _adopt(self, result: object, sigma: NDArray) -> None:
-        """A contact found in the window: its directions, then the frames before its start
-        (a step along them) dropped."""
+    def _adopt(self, result: object, sigma: NDArray, w: int) -> None:
+        """A contact found in the mean of the window's last ``w`` frames: its directions, then
+        the frames before its start (a step along them) dropped, or, where the window shows
+        no such step, the frames before those ``w``."""
         self.result = result
         self._directions(sigma)
-        self._trim_before_change(sigma)
+        if not self._trim_before_change(sigma) and self.frames > w:
+            # The look found it in those w frames: a mean over more would dilute it with the
+            # idle frames before (the step test needs more evidence than the look had; a
+            # light press found in the last 10 frames of 25 was solved again over all 25 and
+            # lost).
+            self._state[kern.N] = float(w)
+            self._total[:] = self._buf[self._rows(w)].sum(axis=0)
+            self._sums()
 
     def _resolve(self, sigma: NDArray, want_t: bool, want_d: bool) -> object:
         """The window's mean solved; if the window holds a step along the new result's
