@@ -310,11 +310,22 @@ def test_round_jacobian_against_central_differences(setup):
     x, y = c.center
     dx = (reading(c.force, x + h, y, c.radius) - reading(c.force, x - h, y, c.radius)) / (2 * h)
     scale = np.abs(dx).max()
-    assert np.abs(jac[:, 1] - dx).max() < 0.1 * scale
+    # (central differences both: they agree to the steps' h², not to a forward one's h)
+    assert np.abs(jac[:, 1] - dx).max() < 0.02 * scale
+    dy = (reading(c.force, x, y + h, c.radius) - reading(c.force, x, y - h, c.radius)) / (2 * h)
+    assert np.abs(jac[:, 2] - dy).max() < 0.02 * np.abs(dy).max()
     t = 0.03
     grown, shrunk = (reading(c.force, x, y, c.radius * math.exp(s)) for s in (t, -t))
     da = (grown - shrunk) / (2 * t)
-    assert np.abs(jac[:, 3] - da).max() < 0.1 * np.abs(da).max()
+    assert np.abs(jac[:, 3] - da).max() < 0.02 * np.abs(da).max()
+    # Two contacts: each one's four columns, in order, as it alone gives them.
+    other = Contact(0.7, (float(r.taxel_xy[50, 0]), float(r.taxel_xy[50, 1]) - 9e-4), 3e-3, "punch")
+    both = round_jacobian(r._round, r.taxel_xy, (c, other))
+    assert both.shape == (len(r.taxel_xy), 8)
+    np.testing.assert_allclose(both[:, :4], jac, rtol=1e-12, atol=1e-18)
+    alone = round_jacobian(r._round, r.taxel_xy, (other,))
+    np.testing.assert_allclose(both[:, 4:], alone, rtol=1e-12, atol=1e-18)
+    assert np.abs(alone[:, 2]).max() > 0.1 * np.abs(alone[:, 0]).max()  # (its y matters)
     field = Contact(1.0, (0.0, 0.0), 1e-3, "field")
     assert round_jacobian(r._round, r.taxel_xy, (field,)) is None
 

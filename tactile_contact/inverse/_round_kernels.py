@@ -581,20 +581,25 @@ def render(centres, cell, sub, x, y, a, force, punch, out):  # pragma: no cover 
 def round_jacobian(table, t0, dt, step, xy, contacts, h_xy, h_t):  # pragma: no cover
     """(K, 4·C) derivatives [m per unit] of the readings at ``xy`` (K, 2) [m] of round
     contacts ``contacts`` (C, 5): force [N], centre x, y [m], log radius, family; in each
-    one's log force, x, y and log radius (forward differences of steps ``h_xy`` [m], ``h_t``
-    through :func:`predict`)."""
+    one's log force, x, y and log radius (central differences of steps ``h_xy`` [m], ``h_t``
+    through :func:`predict`). Why central: a forward difference errs by h/2 of the second
+    derivative, which beside a contact is large across the radial direction (R'(r)/r): 14 %
+    of the y column's largest entry at a taxel 0.7 mm from a 2 mm sphere's centre."""
     k = xy.shape[0]
     out = np.empty((k, 4 * contacts.shape[0]))
     for c in range(contacts.shape[0]):
         force, x, y, t = contacts[c, 0], contacts[c, 1], contacts[c, 2], contacts[c, 3]
         f = int(contacts[c, 4])
         base = predict(table, f, t0, dt, step, xy, x, y, t, force)
-        px = predict(table, f, t0, dt, step, xy, x + h_xy, y, t, force)
-        py = predict(table, f, t0, dt, step, xy, x, y + h_xy, t, force)
-        pt = predict(table, f, t0, dt, step, xy, x, y, t + h_t, force)
+        xp = predict(table, f, t0, dt, step, xy, x + h_xy, y, t, force)
+        xm = predict(table, f, t0, dt, step, xy, x - h_xy, y, t, force)
+        yp = predict(table, f, t0, dt, step, xy, x, y + h_xy, t, force)
+        ym = predict(table, f, t0, dt, step, xy, x, y - h_xy, t, force)
+        tp = predict(table, f, t0, dt, step, xy, x, y, t + h_t, force)
+        tm = predict(table, f, t0, dt, step, xy, x, y, t - h_t, force)
         for i in range(k):
             out[i, 4 * c] = base[i]
-            out[i, 4 * c + 1] = (px[i] - base[i]) / h_xy
-            out[i, 4 * c + 2] = (py[i] - base[i]) / h_xy
-            out[i, 4 * c + 3] = (pt[i] - base[i]) / h_t
+            out[i, 4 * c + 1] = (xp[i] - xm[i]) / (2.0 * h_xy)
+            out[i, 4 * c + 2] = (yp[i] - ym[i]) / (2.0 * h_xy)
+            out[i, 4 * c + 3] = (tp[i] - tm[i]) / (2.0 * h_t)
     return out
