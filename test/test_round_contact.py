@@ -472,6 +472,10 @@ def test_round_refinement_in_the_reconstructor(tmp_path):
     far = np.flatnonzero(np.hypot(*(r.taxel_xy - centre).T) > 0.015)[::20]
     idle[far] += 1.8 * r.compression(np.array([lsb]))[0]
     with_idle = r.solve_deflection(idle)
+    alone = r.solve_deflection(one)
+    assert len(with_idle.contacts) == len(alone.contacts) == 1
+    assert with_idle.total_force == pytest.approx(alone.total_force, rel=1e-6)
+    assert np.hypot(*(np.asarray(with_idle.cop) - alone.cop)) < 1e-6
     # Limited to one, a round contact cannot explain the two: the grid solution stays.
     r.max_contacts = 1
     assert not r.solve_deflection(two).refined
