@@ -34,11 +34,11 @@ frame joins the window, and the window is solved again when its length reaches 2
 window's frames for a step along the new result's directions (a change too small for one frame,
 say a light press that began while the patch read nothing) and drops the frames before it. An
 idle patch (the last result has no contact) looks, every frame, at the means of its last 4, 6,
-8, 10, 12, 16 and 32 frames, and solves the one whose energy in some neighbourhood stands out (a χ² level
-noise alone reaches in ≈ 1 % of frames; :func:`tactile_contact.inverse._temporal_kernels.
-idle_scan`), and the last 32 every ``idle_every`` frames whatever: a touch too light for one
-frame is found with up to √32 of its single-frame statistic, at the reconstructor's stated
-false-contact rate per solve, without a detector pass a frame.
+8, 10, 12, 16 and 32 frames, and solves the one whose energy in some neighbourhood stands out
+(a χ² level noise alone reaches in ≈ 1 % of frames; :func:`tactile_contact.inverse.
+_temporal_kernels.idle_scan`), and the last 32 every ``idle_every`` frames whatever: a touch
+too light for one frame is found with up to √32 of its single-frame statistic, at the
+reconstructor's stated false-contact rate per solve, without a detector pass a frame.
 
 Costs and limits, measured in bench/bench_time.py and bench/bench_held.py (docs/bench/time.md):
 a moving contact is averaged over the frames its motion stays within noise, so the fused
