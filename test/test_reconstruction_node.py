@@ -681,3 +681,48 @@ def test_diagnostics_are_taken_a_few_patches_a_step_and_published_whole(
         names = {s.name for s in array.status}
         assert names == {"contact_reconstruction: hexagon", "contact_reconstruction: forearm"}
     rig.close()
+
+
+def test_repeated_taxel_ids_stamps_and_parameter_sets(
+    ros_context: object, bundles: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A frame that carries a taxel twice (which copy is the taxel's?) is a bad frame named
+    as such, and the next good frame is solved; a frame stamped far ahead of the node's clock
+    is solved but kept out of the latency figures and warned about; a patch whose frames stop
+    is warned about; a parameter set while running is refused with the reason (the node reads
+    them at start)."""
+    from rclpy.parameter import Parameter
+
+    from tactile_contact.msg import TaxelArray
+    from tactile_contact.ros import patch_pipeline
+
+    rig = Rig(ros_context, bundles)
+    pipeline = rig.node.pipelines["hexagon"]
+    press = _delta_c(1.0, tuple(pipeline.recon.taxel_xy[30]))
+    ids = rig.ids.tolist()
+    twice = TaxelArray(patch="hexagon", taxel_ids=ids + ids, raw=[240] * (2 * len(ids)))
+    # (the press in the first copy, zeros in the second: the second silently won before)
+    twice.delta_c = np.concatenate([press, 0 * press]).astype(np.float32).tolist()
+    twice.status = [0] * (2 * len(ids))
+    rig.pub.publish(twice)
+    assert spin_until(rig.executor, lambda: pipeline.stats.bad_frames == 1)
+    assert "more than once" in pipeline.stats.last_error
+    rig.send(press, sec=int(time.time()))
+    assert rig.contacts[-1].total_force == pytest.approx(1.0, rel=0.15)
+    latencies = len(pipeline.stats.latency_s)
+    assert latencies >= 1
+    rig.send(press, sec=2**31 - 1)  # (2038: a bogus stamp)
+    assert rig.contacts[-1].total_force == pytest.approx(1.0, rel=0.15)  # still solved
+    assert pipeline.stats.stamps_ahead >= 1 and len(pipeline.stats.latency_s) == latencies
+    report = pipeline.diagnostics()
+    values = {kv.key: kv.value for kv in report.values}
+    assert report.level[0] == 1 and "ahead of this node's clock" in report.message
+    assert float(values["latency_p99_ms"]) < 60e3
+    monkeypatch.setattr(patch_pipeline, "FRAMES_STOPPED_S", 0.2)
+    time.sleep(0.3)
+    assert "no taxel frame for" in pipeline.diagnostics().message
+    for name, value in (("diagnostics_period", 10.0), ("bundles_dir", "/nonexistent")):
+        (result,) = rig.node.set_parameters([Parameter(name, value=value)])
+        assert not result.successful and "at start only" in result.reason
+        assert rig.node.get_parameter(name).value != value
+    rig.close()

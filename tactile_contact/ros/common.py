@@ -114,6 +114,24 @@ def _check_choices(node: Node, params: Sequence[Parameter]) -> SetParametersResu
     return SetParametersResult(successful=True)
 
 
+def read_at_start_only(node: Node) -> None:
+    """Refuse every later set of ``node``'s parameters, naming why: a node that reads its
+    parameters once at start. Why: ``ros2 param set`` answered "successful" and the parameter
+    server then showed a value the running node did not use (bundles_dir, input,
+    diagnostics_period, worker_count). Call it after the node's last declaration."""
+    name = node.get_name()
+
+    def refuse(params: Sequence[Parameter]) -> SetParametersResult:
+        names = ", ".join(p.name for p in params)
+        return SetParametersResult(
+            successful=False,
+            reason=f"{name} reads its parameters at start only: restart it with the new "
+            f"value (--ros-args -p NAME:=VALUE) to change {names}",
+        )
+
+    node.add_on_set_parameters_callback(refuse)
+
+
 def declare_parameter(
     node: Node,
     name: str,

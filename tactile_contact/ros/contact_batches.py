@@ -16,7 +16,6 @@ subscribes with a content filter on the batch's ``bus`` so that only theirs reac
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Any
 
@@ -48,6 +47,12 @@ CATCH_UP_BUDGET_S = 2.0e-3
 #: a worker that keeps up finds nothing waiting and publishes each batch as before.
 COALESCE_BUDGET_S = 2.0e-3
 COALESCE_MAX = 8
+#: A patch's frame stamped no later than the newest one solved is skipped (an older frame
+#: out of a queue) when within this much of it [ns]; further back, its clock stepped (an NTP
+#: step, a replay or driver restarted, a bogus stamp before): it is taken and the order
+#: starts again from it. Why: one frame stamped in 2038 stopped its patch until then, and a
+#: clock stepped back by X s dropped X s of frames, with no word either time.
+CLOCK_STEP_NS = 1_000_000_000
 
 
 def add_row(rows: ContactRows, pipe: Any, stamp_ns: int, result: Any) -> None:
@@ -118,6 +123,11 @@ class ContactBatches:
         self.bad_batches = 0
         self.last_error = ""
         self._newest: dict[str, int] = {}  # patch → stamp [ns] of its newest frame solved
+        #: Frames skipped as older than one of their patch already solved (CLOCK_STEP_NS),
+        #: and frames taken although stamped more than that before it (a clock step).
+        self.stale_frames = 0
+        self.clock_steps = 0
+        self.last_clock_step = ""
         # Patches whose fusion deferred a re-solve, oldest first (PatchPipeline.frame).
         self._deferred: dict[str, Any] = {}
         #: Batches taken inside another's callback (their rows in its ContactArray).
@@ -251,8 +261,18 @@ class ContactBatches:
             if pipe is None or name not in serving:
                 continue  # another worker's patch
             stamp = view.stamps_ns[i]
-            if stamp <= newest.get(name, -1):
-                continue  # a newer frame of it was solved already (out of a queue)
+            last = newest.get(name)
+            if last is not None and stamp <= last:
+                if last - stamp <= CLOCK_STEP_NS:
+                    self.stale_frames += 1  # a newer frame of it was solved already
+                    continue
+                self.clock_steps += 1
+                self.last_clock_step = (
+                    f"patch {name}: a frame stamped {(last - stamp) * 1e-9:.3g} s before the "
+                    "newest one solved (a clock step, a restarted replay or a bogus stamp): "
+                    "taken, the order starts again from it"
+                )
+                node.get_logger().warning(self.last_clock_step, throttle_duration_sec=5.0)
             newest[name] = stamp
             a, b = off[i], off[i + 1]
             if quiet is None:
@@ -278,7 +298,7 @@ class ContactBatches:
         rows.latency = [(now - s) * 1e-9 for s in rows.stamps_ns]
         for name, lat in zip(rows.patches, rows.latency, strict=True):
             pipe = self.node.pipelines.get(name)
-            if pipe is not None and math.isfinite(lat):
+            if pipe is not None and pipe.latency_ok(lat):
                 pipe.stats.latency_s.append(lat)
         try:
             data = write_contact_array(max(rows.stamps_ns), self.node.link.me.worker, rows)
@@ -294,6 +314,8 @@ class ContactBatches:
             "batches": self.batches,
             "bad_batches": self.bad_batches,
             "batches_coalesced": self.coalesced,
+            "stale_frames": self.stale_frames,
+            "clock_steps": self.clock_steps,
             # frames a batch's compiled call took with nothing more, and with Python after
             "frames_batch_held": self.quiet.held if self.quiet is not None else 0,
             "frames_batch_rest": self.quiet.rest if self.quiet is not None else 0,

@@ -55,6 +55,7 @@ from tactile_contact.ros.common import (
     diagnostic_status,
     log_parameters,
     publish_while_up,
+    read_at_start_only,
     run_node,
 )
 from tactile_contact.ros.contact_batches import ContactBatches
@@ -225,6 +226,7 @@ class ContactReconstructionNode(Node):
         )
         log_parameters(self, PARAMETERS)
         self._sim_time = bool(self.get_parameter("use_sim_time").value)
+        read_at_start_only(self)
         self.load_errors: dict[str, str] = {}
         self.pipelines: dict[str, PatchPipeline] = {}
         self._refused: dict[Path, tuple] = {}  # bundle → signature of the refused version
@@ -531,8 +533,31 @@ class ContactReconstructionNode(Node):
             msg.status.append(
                 diagnostic_status(f"contact_reconstruction: {name}", ERROR, error, {}, name)
             )
+        if self.input == "batches" and not self.link.worker_mode:
+            # (a worker reports its batches in its own status; a lone node's bad batches and
+            # clock steps were in its log only)
+            msg.status.append(self._batches_status())
         # (a timer: it may run while a Ctrl-C shuts the context down under it)
         publish_while_up(self, self.pub_diag, msg)
+
+    def _batches_status(self) -> Any:
+        """The taxel_batches input's status (a node that is no worker): batches taken, the
+        last bad one, the last clock step."""
+        b = self.batches
+        quiet = b.quiet
+        faults = b.bad_batches + (quiet.errors if quiet is not None else 0)
+        level = WARN if faults or b.clock_steps else OK
+        parts = [f"{b.batches} batches"]
+        if b.last_error:
+            parts.append(f"last bad batch: {b.last_error}")
+        if b.last_clock_step:
+            parts.append(f"last clock step: {b.last_clock_step}")
+        if quiet is not None and quiet.last_error:
+            parts.append(f"last {quiet.last_error}")
+        values = {"input": self.input, **b.values(), "cpu_time_s": time.process_time()}
+        return diagnostic_status(
+            "contact_reconstruction: batches", level, "; ".join(parts), values, "batches"
+        )
 
     def _publish_worker_status(self) -> None:
         """The worker's own status, in an array of its own (timer, once a period)."""
@@ -559,10 +584,12 @@ class ContactReconstructionNode(Node):
         served = f"serving {len(link.serving)} of {len(link.given)} patches"
         quiet = self.batches.quiet
         faults = self.batches.bad_batches + (quiet.errors if quiet is not None else 0)
-        level = WARN if problem or faults else OK
+        level = WARN if problem or faults or self.batches.clock_steps else OK
         message = f"{served}; {text}" if text else served
         if self.batches.last_error:
             message += f"; last bad batch: {self.batches.last_error}"
+        if self.batches.last_clock_step:
+            message += f"; last clock step: {self.batches.last_clock_step}"
         if quiet is not None and quiet.last_error:
             message += f"; last {quiet.last_error}"
         name = f"contact_reconstruction: worker {me.worker}"

@@ -55,6 +55,15 @@ SUBSCRIBERS_RECOUNT_S = 0.2
 #: their stamps: a frame or two lost near the detection threshold does not split a press.
 CONTACT_END_S = 0.25
 
+#: A frame's latency [s] (this node's clock minus the frame's stamp) outside this range is
+#: no age but a clock's problem, and is kept out of the latency figures: a stamp ahead of
+#: this node's clock (two machines' clocks apart, a bogus stamp: warned) or a minute and
+#: more behind it (a bag replayed without use_sim_time: counted, logged once). Why: one
+#: frame stamped in 1969 made latency_p99_ms 1.8e12 on /diagnostics.
+LATENCY_RANGE_S = (-1.0, 60.0)
+#: A patch that had frames and then none for this long [s] is warned about (the driver
+#: sends an untouched patch at least every idle_every periods: ≤ 1 s at 50 Hz).
+FRAMES_STOPPED_S = 3.0
 OUTPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
 QUIET_EVENTS = PublisherEventCallbacks(use_default_callbacks=False)
 
@@ -122,6 +131,8 @@ class PatchStats:
     out_of_range: int = 0
     unpublishable: int = 0
     internal_errors: int = 0
+    stamps_ahead: int = 0  # frames stamped ahead of this node's clock (LATENCY_RANGE_S)
+    stamps_old: int = 0  # frames stamped a minute and more before it
     contacts: int = 0  # contacts started (a press, from its first frame to CONTACT_END_S after)
     contact_frames: int = 0
     peak_force: float = 0.0  # largest total force [N] of any frame
@@ -295,7 +306,18 @@ class PatchPipeline:
         the ids' bytes: a tuple of them cost more than the rest of the mapping)."""
         key = ids.tobytes()
         if key != self._perm_key:
-            where = {int(t): i for i, t in enumerate(ids)}
+            where: dict[int, int] = {}
+            twice: list[int] = []
+            for i, t in enumerate(ids.tolist()):
+                if where.setdefault(t, i) != i:
+                    twice.append(t)
+            if twice:
+                # (which of the two readings is the taxel's cannot be told: the later one
+                # silently won, a press read as zeros by its copy was lost)
+                raise ValueError(
+                    f"taxel ids {[hex(t) for t in twice[:5]]} appear more than once in the "
+                    f"message ({len(twice)} in all)"
+                )
             missing = [int(t) for t in self._ids if int(t) not in where]
             if missing:
                 raise ValueError(
@@ -611,6 +633,30 @@ class PatchPipeline:
         stats.time("publish", time.perf_counter() - t2)
         return result if ok else None
 
+    def latency_ok(self, latency: float) -> bool:
+        """Whether a frame's latency [s] is an age (LATENCY_RANGE_S) to count; if not, it is
+        counted and said (a stamp ahead: warned; one old: logged once)."""
+        low, high = LATENCY_RANGE_S
+        if low <= latency <= high:
+            return True
+        s = self.stats
+        if latency < low:
+            s.stamps_ahead += 1
+            self._fault(
+                "stamp ahead",
+                f"a frame stamped {-latency:.3g} s ahead of this node's clock: its latency is "
+                "not counted (the sender's and this machine's clocks apart? NTP, chrony)",
+                warn=True,
+            )
+        elif math.isfinite(latency):
+            s.stamps_old += 1
+            if s.stamps_old == 1:
+                self.node.get_logger().info(
+                    f"patch {self.name}: frames stamped {latency:.3g} s before this node's "
+                    "clock (a replay without use_sim_time?): their latency is not counted"
+                )
+        return False
+
     def _follow_contact(self, stamp: float, result: Any) -> None:
         """Count contacts and log one line when each starts and one when it ends."""
         force = float(result.total_force) if result.in_contact else 0.0
@@ -685,7 +731,7 @@ class PatchPipeline:
             if not want_contact:
                 return True
             latency = (self.node.now_ns() - stamp_ns) * 1e-9
-            if contact:
+            if contact and self.latency_ok(latency):
                 stats.latency_s.append(latency)
             self.pub_contact.publish(
                 convert.contact_state(
@@ -784,6 +830,8 @@ class PatchPipeline:
             "out_of_range_readings": s.out_of_range,
             "unpublishable": s.unpublishable,
             "internal_errors": s.internal_errors,
+            "stamps_ahead": s.stamps_ahead,
+            "stamps_old": s.stamps_old,
             "contacts": s.contacts,
             "contact_frames": s.contact_frames,
             "peak_force_n": s.peak_force,
@@ -814,11 +862,17 @@ class PatchPipeline:
             s.unpublishable,
             s.out_of_range,
             s.internal_errors,
+            s.stamps_ahead,
         )
         if any(faults):
             level, message = WARN, s.last_error
         if s.frames == 0:
             level, message = WARN, "no taxel frames received yet"
+        else:
+            quiet_for = time.monotonic() - self._last_frame
+            if quiet_for > FRAMES_STOPPED_S:
+                level = WARN
+                message = f"no taxel frame for {quiet_for:.0f} s; {message}"
         if self.bundle_problem:
             level = ERROR if "refused" in self.bundle_problem else max(level, WARN)
             message = f"{self.bundle_problem}; {message}"
