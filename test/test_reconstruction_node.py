@@ -726,3 +726,34 @@ def test_repeated_taxel_ids_stamps_and_parameter_sets(
         assert not result.successful and "at start only" in result.reason
         assert rig.node.get_parameter(name).value != value
     rig.close()
+
+
+def test_a_layout_edit_that_makes_a_served_bundle_stale_is_said_at_once(
+    ros_context: object, bundles: Path, tmp_path: Path
+) -> None:
+    """A bundle built from a layout file that is then edited (the elastomer's modulus here)
+    would be refused at the next start: the running node says so at once (ERROR, the copy in
+    memory going on serving), and stops saying it when the file matches again. Before, it
+    stayed OK until a respawn took the patch down."""
+    from tactile_contact.offline.build import build_layout
+
+    layout = tmp_path / "hexagon.yaml"
+    text = LAYOUT.read_text()
+    layout.write_text(text)
+    build_layout(layout, tmp_path / "bundles")
+    _second_patch(bundles, tmp_path / "bundles")
+    rig = TwoPatchRig(ros_context, tmp_path / "bundles")
+    good = _delta_c(1.0, _on_taxel(30))
+    rig.publish("hexagon", rig.msg("hexagon", good), expect_output=True)
+    level, message, _ = rig.status("hexagon")
+    assert level == 0, message
+    assert "young: 2.1e5" in text
+    layout.write_text(text.replace("young: 2.1e5", "young: 3.0e5"))
+    level, message, values = rig.status("hexagon")
+    assert level == 2 and "layout file changed" in message and "parameter" in message, message
+    rig.publish("hexagon", rig.msg("hexagon", good), expect_output=True)
+    assert rig.contacts["hexagon"][-1].total_force == pytest.approx(1.0, rel=0.15)
+    layout.write_text(text)
+    level, message, values = rig.status("hexagon")
+    assert level == 0 and values["bundle_problem"] == "", message
+    rig.close()

@@ -205,6 +205,47 @@ def _source_patch(p: Path, m: dict[str, Any]) -> Any:
         ) from None
 
 
+def _check_patch(p: Path, m: dict[str, Any], expected: Any) -> None:
+    """Raise BundleForeignError / BundleStaleError unless the bundle (manifest ``m``) is of
+    the patch ``expected`` and built from its layout and parameters."""
+    if m["patch"] != expected.name:
+        raise BundleForeignError(
+            f"{p}: bundle of patch {m['patch']!r}, expected patch {expected.name!r}"
+        )
+    if m["layout_hash"] != expected.layout_hash():
+        raise BundleStaleError(
+            f"{p}: built for another module layout of patch "
+            f"{m['patch']!r} (layout hash differs{_since(m)}); rebuild it"
+        )
+    if m["parameter_hash"] != expected.parameter_hash():
+        raise BundleStaleError(
+            f"{p}: built from other parameters of patch {m['patch']!r} "
+            f"(parameter hash differs{_since(m)}); rebuild it"
+        )
+
+
+def layout_source(bundle: Bundle) -> Path | None:
+    """The layout file the bundle was built from (``tactile-contact-build`` records it), or
+    None where none was recorded."""
+    source = bundle.manifest.get("layout_source")
+    return Path(source) if isinstance(source, str) else None
+
+
+def source_problem(path: str | Path) -> str:
+    """Why the bundle at ``path`` no longer matches the layout file it was built from — what
+    :func:`load_bundle` would refuse it for — or "" (it matches, or that file is gone or was
+    never recorded). Reads the manifest and the layout, no array."""
+    p = Path(path)
+    try:
+        m = read_manifest(p)
+        expected = _source_patch(p, m)
+        if expected is not None:
+            _check_patch(p, m, expected)
+    except BundleError as exc:
+        return str(exc)
+    return ""
+
+
 def load_bundle(
     path: str | Path,
     expected_layout: Any = None,
@@ -231,20 +272,7 @@ def load_bundle(
     if expected_layout is None and check_source:
         expected_layout = _source_patch(p, m)
     if expected_layout is not None:
-        if m["patch"] != expected_layout.name:
-            raise BundleForeignError(
-                f"{p}: bundle of patch {m['patch']!r}, expected patch {expected_layout.name!r}"
-            )
-        if m["layout_hash"] != expected_layout.layout_hash():
-            raise BundleStaleError(
-                f"{p}: built for another module layout of patch "
-                f"{m['patch']!r} (layout hash differs{_since(m)}); rebuild it"
-            )
-        if m["parameter_hash"] != expected_layout.parameter_hash():
-            raise BundleStaleError(
-                f"{p}: built from other parameters of patch {m['patch']!r} "
-                f"(parameter hash differs{_since(m)}); rebuild it"
-            )
+        _check_patch(p, m, expected_layout)
     arrays: dict[str, NDArray[Any]] = {}
     index = m["arrays"]
     if not isinstance(index, dict):

@@ -44,7 +44,7 @@ from rclpy.node import Node
 
 from tactile_contact.inverse.reconstruction import Reconstructor
 from tactile_contact.model.layout import load_layout
-from tactile_contact.offline.bundle import load_bundle, read_manifest
+from tactile_contact.offline.bundle import load_bundle, read_manifest, source_problem
 from tactile_contact.ros.common import (
     DIAGNOSTICS_QOS,
     ERROR,
@@ -66,6 +66,7 @@ from tactile_contact.ros.patch_pipeline import (  # noqa: F401  (their old home:
     PatchPipeline,
     PatchStats,
     check_result,
+    file_signature,
 )
 from tactile_contact.ros.worker_link import WorkerLink
 from tactile_contact.ros.workers import bus_filter, worker_patches
@@ -401,7 +402,10 @@ class ContactReconstructionNode(Node):
         sig = bundle_signature(pipe.bundle)
         if sig == pipe.signature or sig == self._refused.get(pipe.bundle) or not sig:
             self._loads.pop(pipe.bundle, None)  # (a load of a version gone since: unused)
-        if sig == pipe.signature or sig == self._refused.get(pipe.bundle):
+        if sig == pipe.signature:
+            self._watch_source(pipe)
+            return
+        if sig == self._refused.get(pipe.bundle):
             return
         if not sig:
             if not pipe.bundle_problem.startswith("bundle deleted"):
@@ -430,6 +434,28 @@ class ContactReconstructionNode(Node):
         pipe.reloads += 1
         self._refused.pop(pipe.bundle, None)
         log.info(f"patch {pipe.name}: bundle {pipe.bundle} replaced on disk; reloaded")
+
+    def _watch_source(self, pipe: PatchPipeline) -> None:
+        """Notice an edit of the layout file a served bundle was built from that makes the
+        bundle stale (a module moved, a parameter changed): the next start would refuse it,
+        and the copy in memory no longer describes the skin. Said (ERROR) at once, the copy
+        going on serving; cleared if the file matches again. Why: it stayed OK until a
+        respawn took the patch down."""
+        sig = file_signature(pipe.source)
+        if sig == pipe.source_signature:
+            return
+        pipe.source_signature = sig
+        problem = source_problem(pipe.bundle)
+        log = self.get_logger()
+        if problem:
+            pipe.bundle_problem = (
+                f"its layout file changed since the build, refused at the next start "
+                f"({problem}); serving the copy loaded before"
+            )
+            log.error(f"patch {pipe.name}: {pipe.bundle_problem}")
+        elif pipe.bundle_problem.startswith("its layout file changed"):
+            pipe.bundle_problem = ""
+            log.info(f"patch {pipe.name}: its layout file {pipe.source} matches its bundle again")
 
     def retry_refused(self, wait: bool = True) -> None:
         """The bundles refused at start, tried again when they changed on disk (``wait``

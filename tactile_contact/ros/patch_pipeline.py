@@ -11,6 +11,7 @@ frames from ``<patch>/taxels`` or from batches (tactile_contact.ros.contact_batc
 from __future__ import annotations
 
 import math
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -195,6 +196,17 @@ def check_result(result: Any) -> None:
             raise convert.NonFiniteError(f"{name}: non-finite value(s); not published")
 
 
+def file_signature(path: Path | None) -> tuple:
+    """(inode, mtime [ns], size) of the file at ``path``, () if there is none."""
+    if path is None:
+        return ()
+    try:
+        st = os.stat(path)
+    except OSError:
+        return ()
+    return st.st_ino, st.st_mtime_ns, st.st_size
+
+
 class PatchPipeline:
     """Publishers, the reconstructor and the taxel mapping of one patch."""
 
@@ -281,6 +293,11 @@ class PatchPipeline:
         # Where the patch lies on the robot (an imported skin): its rviz2 outputs go there.
         manifest = getattr(getattr(recon, "bundle", None), "manifest", {})
         self.surface = Surface.from_dict(manifest.get("layout", {}).get("surface"))
+        # The layout file the bundle was built from, and its state now: an edit of it that
+        # makes the bundle stale is noticed while the node runs (the node's watch_bundle).
+        source = manifest.get("layout_source")
+        self.source = Path(source) if isinstance(source, str) else None
+        self.source_signature = file_signature(self.source)
         # Each taxel's noise, learnt from frames without contact; it sets the detection
         # threshold (tactile_contact.inverse.detection). Floor: the bare rounding of one count.
         self.noise = NoiseTracker(recon.default_noise / np.sqrt(2.0), start=recon.default_noise)
