@@ -467,6 +467,62 @@ def test_configure_reports_failure_and_stays_unconfigured(
         node.destroy_node()
 
 
+def test_a_failed_configure_is_on_diagnostics_until_a_configure_succeeds(
+    ros_context: Any,
+) -> None:
+    """A driver whose configure failed (here contact_off_counts set above contact_on_counts)
+    says why on /diagnostics, ERROR, every period, until a configure succeeds; it vanished
+    from /diagnostics before (its publisher is made by configure)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.lifecycle import TransitionCallbackReturn
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from tactile_contact.ros.common import DIAGNOSTICS_QOS
+    from tactile_contact.ros.skin_driver import SkinDriver
+    from test.rosutil import spin_until
+
+    params = {
+        "layout": str(LAYOUT),
+        "interface": "virtual",
+        "channel": "failed_configure",
+        "contact_on_counts": 3.0,
+        "contact_off_counts": 200.0,
+        "diagnostics_period_s": 0.1,
+    }
+    node = SkinDriver(
+        context=ros_context, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]
+    )
+    probe = Node("failed_configure_probe", context=ros_context)
+    seen: list = []
+    probe.create_subscription(DiagnosticArray, "/diagnostics", seen.append, DIAGNOSTICS_QOS)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    executor.add_node(probe)
+    name = f"{node.get_name()}: configure"
+
+    def failure() -> Any:
+        return next((s for a in seen for s in a.status if s.name == name), None)
+
+    try:
+        assert node._state_machine.current_state[1] == "unconfigured"
+        assert spin_until(executor, lambda: failure() is not None)
+        status = failure()
+        assert status.level[0] == 2
+        assert "configure failed" in status.message and "contact_off_counts" in status.message
+        node.set_parameters([Parameter("contact_off_counts", value=1.0)])
+        assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        assert node._state_machine.current_state[1] == "inactive"
+        executor.spin_once(timeout_sec=0.3)
+        seen.clear()
+        assert not spin_until(executor, lambda: failure() is not None, timeout_s=1.0)
+    finally:
+        executor.shutdown()
+        probe.destroy_node()
+        node.destroy_node()
+
+
 def test_send_config_writes_host_commands(harness_factory: Any) -> None:
     rx = can.Bus(interface="virtual", channel="test_send_config_writes_host_commands-0")
     try:

@@ -162,6 +162,8 @@ class SkinDriver(LifecycleNode):
         self._warned: dict[str, float] = {}  # kind → monotonic time last logged
         self._diag_due = False  # a state change awaits its /diagnostics
         self._diag_last = -1.0  # monotonic time of the last /diagnostics
+        # While unconfigured after a failed configure: its /diagnostics publisher and timer.
+        self._failure: tuple[Publisher, Timer] | None = None
         super().__init__(node_name, **kwargs)
         for name, default, text, options in PARAMETERS:
             cm.declare_parameter(self, name, default, text, **options)
@@ -182,12 +184,48 @@ class SkinDriver(LifecycleNode):
 
     # -- lifecycle ------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._stop_failure_report()
         try:
             return self._configure()
         except Exception as exc:  # a transition must end in FAILURE with a reason, not ERROR
-            self.get_logger().error(f"configure failed: {type(exc).__name__}: {exc}")
+            text = f"configure failed: {type(exc).__name__}: {exc}"
+            self.get_logger().error(text)
             self._close()
+            self._report_failure(text)
             return FAILURE
+
+    def _report_failure(self, text: str) -> None:
+        """Say on /diagnostics (ERROR, every diagnostics period until the next configure)
+        why the driver is unconfigured. Why: configure creates the driver's diagnostics, so a
+        driver whose configure failed (a layout path mistyped, contact_off_counts above
+        contact_on_counts after a parameter set) vanished from /diagnostics and a monitor saw
+        nothing wrong."""
+        status = cm.diagnostic_status(
+            f"{self.get_name()}: configure",
+            cm.ERROR,
+            f"{text} (unconfigured: fix the parameter and configure again)",
+            {},
+            self.get_name(),
+        )
+
+        def publish() -> None:
+            if self._failure is not None:
+                out = DiagnosticArray()
+                out.header.stamp = self.get_clock().now().to_msg()
+                out.status = [status]
+                cm.publish_while_up(self, self._failure[0], out)
+
+        period = self._params_value("diagnostics_period_s")
+        pub = self.create_publisher(DiagnosticArray, "/diagnostics", cm.DIAGNOSTICS_QOS)
+        timer = self.create_timer(period if period > 0 else 1.0, publish)
+        self._failure = (pub, timer)
+        publish()
+
+    def _stop_failure_report(self) -> None:
+        failure, self._failure = self._failure, None
+        if failure is not None:
+            self.destroy_timer(failure[1])
+            self.destroy_publisher(failure[0])
 
     def _served(self, layout_path: Path, layout: Any) -> list[tuple[str, str]]:
         """The buses this driver serves and their channels, from ``bus``, ``buses`` and
@@ -487,6 +525,7 @@ class SkinDriver(LifecycleNode):
 
     def destroy_node(self) -> None:
         self._close()
+        self._stop_failure_report()
         super().destroy_node()
 
     # -- bus ------------------------------------------------------------------------------
