@@ -34,6 +34,35 @@ def reconstruction_workers(context: object, count: int, **params: object) -> lis
     ]
 
 
+def batch_probe(context: object, name: str) -> tuple:
+    """A node ``name`` that publishes TaxelBatch bytes on ``taxel_batches`` and collects the
+    (patch, stamp [ns]) rows of every ContactArray on ``contacts``: (node, publisher, rows)."""
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from tactile_contact.msg import ContactArray, TaxelBatch
+    from tactile_contact.ros import contact_batches
+    from tactile_contact.ros.cdr import read_contact_array
+    from tactile_contact.ros.common import SENSOR_QOS
+
+    node = Node(name, context=context)
+    pub = node.create_publisher(TaxelBatch, contact_batches.BATCHES_TOPIC, SENSOR_QOS)
+    rows: list[tuple[str, int]] = []
+
+    def summarised(data: bytes) -> None:
+        got = read_contact_array(data)[1]
+        rows.extend(zip(got.patches, got.stamps_ns, strict=True))
+
+    node.create_subscription(
+        ContactArray,
+        contact_batches.CONTACTS_TOPIC,
+        summarised,
+        QoSProfile(depth=64, reliability=ReliabilityPolicy.BEST_EFFORT),  # (none lost here)
+        raw=True,
+    )
+    return node, pub, rows
+
+
 def spin_until(executor: Executor, done: Callable[[], bool], timeout_s: float = 10.0) -> bool:
     """Spin ``executor`` until ``done()`` is true or ``timeout_s`` passes; return ``done()``."""
     deadline = time.monotonic() + timeout_s

@@ -53,16 +53,13 @@ def test_a_bogus_stamp_or_a_clock_step_drops_nothing_after_it(
 ) -> None:
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
     from rclpy.parameter import Parameter
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     from tactile_contact.model.layout import load_layout
-    from tactile_contact.msg import ContactArray, TaxelBatch
-    from tactile_contact.ros import contact_batches
-    from tactile_contact.ros.cdr import read_contact_array
-    from tactile_contact.ros.common import DIAGNOSTICS_QOS, SENSOR_QOS
+    from tactile_contact.msg import TaxelBatch
+    from tactile_contact.ros.common import DIAGNOSTICS_QOS
     from tactile_contact.ros.contact_reconstruction import ContactReconstructionNode
+    from test.rosutil import batch_probe
 
     patch = load_layout(LAYOUT).patches[0]
     node = ContactReconstructionNode(
@@ -73,21 +70,7 @@ def test_a_bogus_stamp_or_a_clock_step_drops_nothing_after_it(
             Parameter("diagnostics_period", value=0.1),
         ],
     )
-    probe = Node("batch_faults_probe", context=ros_context)
-    pub = probe.create_publisher(TaxelBatch, contact_batches.BATCHES_TOPIC, SENSOR_QOS)
-    rows: list[tuple[str, int]] = []
-
-    def on_array(data: bytes) -> None:
-        a = read_contact_array(data)[1]
-        rows.extend(zip(a.patches, a.stamps_ns, strict=True))
-
-    probe.create_subscription(
-        ContactArray,
-        contact_batches.CONTACTS_TOPIC,
-        on_array,
-        QoSProfile(depth=64, reliability=ReliabilityPolicy.BEST_EFFORT),
-        raw=True,
-    )
+    probe, pub, rows = batch_probe(ros_context, "batch_faults_probe")
     diags: list = []
     probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, DIAGNOSTICS_QOS)
     executor = SingleThreadedExecutor(context=ros_context)

@@ -78,36 +78,17 @@ def test_each_worker_reads_only_its_buses_batches(
     ros_context: object, two_buses: tuple[Path, Path]
 ) -> None:
     from rclpy.experimental import EventsExecutor
-    from rclpy.node import Node
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     from tactile_contact.model.layout import load_layout
-    from tactile_contact.msg import ContactArray, TaxelBatch
     from tactile_contact.ros import contact_batches
-    from tactile_contact.ros.cdr import read_contact_array
-    from tactile_contact.ros.common import SENSOR_QOS
-    from test.rosutil import reconstruction_workers
+    from test.rosutil import batch_probe, reconstruction_workers
 
     layout, bundles = two_buses
     forearm, palm = load_layout(layout).patches
     workers = reconstruction_workers(
         ros_context, 2, bundles_dir=str(bundles), layout=str(layout), input="batches"
     )
-    other = Node("bus_filter_probe", context=ros_context)
-    pub = other.create_publisher(TaxelBatch, contact_batches.BATCHES_TOPIC, SENSOR_QOS)
-    rows: list[tuple[str, int]] = []
-
-    def summarised(data: bytes) -> None:
-        got = read_contact_array(data)[1]
-        rows.extend(zip(got.patches, got.stamps_ns, strict=True))
-
-    other.create_subscription(
-        ContactArray,
-        contact_batches.CONTACTS_TOPIC,
-        summarised,
-        QoSProfile(depth=64, reliability=ReliabilityPolicy.BEST_EFFORT),
-        raw=True,
-    )
+    other, pub, rows = batch_probe(ros_context, "bus_filter_probe")
     executor = EventsExecutor(context=ros_context)
     for node in (*workers, other):
         executor.add_node(node)
