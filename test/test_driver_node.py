@@ -512,8 +512,18 @@ def test_a_failed_configure_is_on_diagnostics_until_a_configure_succeeds(
         assert status.level[0] == 2
         assert "configure failed" in status.message and "contact_off_counts" in status.message
         node.set_parameters([Parameter("contact_off_counts", value=1.0)])
+        seen.clear()
         assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
         assert node._state_machine.current_state[1] == "inactive"
+        assert spin_until(executor, lambda: failure() is not None and failure().level[0] == 0)
+        seen.clear()
+        assert not spin_until(executor, lambda: failure() is not None, timeout_s=1.0)
+        # Failed again, then shut down (finalized): the report stops with it.
+        node.set_parameters([Parameter("contact_off_counts", value=200.0)])
+        assert node.trigger_cleanup() == TransitionCallbackReturn.SUCCESS
+        assert node.trigger_configure() == TransitionCallbackReturn.FAILURE
+        assert spin_until(executor, lambda: failure() is not None and failure().level[0] == 2)
+        assert node.trigger_shutdown() == TransitionCallbackReturn.SUCCESS
         executor.spin_once(timeout_sec=0.3)
         seen.clear()
         assert not spin_until(executor, lambda: failure() is not None, timeout_s=1.0)

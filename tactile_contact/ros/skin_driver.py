@@ -184,9 +184,21 @@ class SkinDriver(LifecycleNode):
 
     # -- lifecycle ------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        failed_before = self._failure is not None
         self._stop_failure_report()
         try:
-            return self._configure()
+            result = self._configure()
+            if failed_before and self._diag_pub is not None:
+                # (the ERROR said before is answered, not left to go stale in a monitor)
+                out = DiagnosticArray()
+                out.header.stamp = self.get_clock().now().to_msg()
+                out.status = [
+                    cm.diagnostic_status(
+                        f"{self.get_name()}: configure", cm.OK, "configured", {}, self.get_name()
+                    )
+                ]
+                cm.publish_while_up(self, self._diag_pub, out)
+            return result
         except Exception as exc:  # a transition must end in FAILURE with a reason, not ERROR
             text = f"configure failed: {type(exc).__name__}: {exc}"
             self.get_logger().error(text)
@@ -482,10 +494,12 @@ class SkinDriver(LifecycleNode):
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._close()
+        self._stop_failure_report()  # (finalized: "configure again" no longer applies)
         return SUCCESS
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._close()
+        self._stop_failure_report()
         return SUCCESS
 
     def _stop_thread(self) -> None:
