@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -748,12 +749,22 @@ def test_a_layout_edit_that_makes_a_served_bundle_stale_is_said_at_once(
     level, message, _ = rig.status("hexagon")
     assert level == 0, message
     assert "young: 2.1e5" in text
+
+    def status_until(done: Callable[[int, str], bool]) -> tuple[int, str, dict[str, str]]:
+        """The patch's status once ``done(level, message)`` (the file is read on the loader's
+        thread: a diagnostics step or two later), at most 10 s."""
+        deadline = time.monotonic() + 10.0
+        while True:
+            level, message, values = rig.status("hexagon")
+            if done(level, message) or time.monotonic() > deadline:
+                return level, message, values
+
     layout.write_text(text.replace("young: 2.1e5", "young: 3.0e5"))
-    level, message, values = rig.status("hexagon")
+    level, message, values = status_until(lambda lv, m: "layout file changed" in m)
     assert level == 2 and "layout file changed" in message and "parameter" in message, message
     rig.publish("hexagon", rig.msg("hexagon", good), expect_output=True)
     assert rig.contacts["hexagon"][-1].total_force == pytest.approx(1.0, rel=0.15)
     layout.write_text(text)
-    level, message, values = rig.status("hexagon")
+    level, message, values = status_until(lambda lv, m: "layout file changed" not in m)
     assert level == 0 and values["bundle_problem"] == "", message
     rig.close()

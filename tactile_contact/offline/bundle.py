@@ -182,17 +182,20 @@ def _since(m: dict[str, Any]) -> str:
     return f"; built from {source}" if isinstance(source, str) else ""
 
 
-def _source_patch(p: Path, m: dict[str, Any]) -> Any:
+def _source_patch(p: Path, m: dict[str, Any], loaded: Any = None) -> Any:
     """The patch of the layout file the bundle was built from, None if that file is gone (or
     was never recorded). Raises BundleStaleError if the file no longer loads or no longer
-    holds the patch: the bundle cannot be trusted to match the skin it describes."""
+    holds the patch: the bundle cannot be trusted to match the skin it describes. ``loaded``:
+    that file already loaded (a Layout, or the LayoutError loading it raised), else read."""
     from tactile_contact.model.layout import LayoutError, load_layout
 
     source = m.get("layout_source")
     if not isinstance(source, str) or not Path(source).is_file():
         return None
     try:
-        layout = load_layout(source)
+        if isinstance(loaded, Exception):
+            raise LayoutError(str(loaded))
+        layout = load_layout(source) if loaded is None else loaded
     except LayoutError as exc:
         raise BundleStaleError(
             f"{p}: its layout file no longer loads ({exc}); fix it or rebuild the bundle"
@@ -231,14 +234,15 @@ def layout_source(bundle: Bundle) -> Path | None:
     return Path(source) if isinstance(source, str) else None
 
 
-def source_problem(path: str | Path) -> str:
+def source_problem(path: str | Path, loaded: Any = None) -> str:
     """Why the bundle at ``path`` no longer matches the layout file it was built from — what
     :func:`load_bundle` would refuse it for — or "" (it matches, or that file is gone or was
-    never recorded). Reads the manifest and the layout, no array."""
+    never recorded). Reads the manifest and the layout (unless ``loaded``: that file already
+    loaded, or the LayoutError it raised), no array."""
     p = Path(path)
     try:
         m = read_manifest(p)
-        expected = _source_patch(p, m)
+        expected = _source_patch(p, m, loaded)
         if expected is not None:
             _check_patch(p, m, expected)
     except BundleError as exc:
