@@ -57,6 +57,7 @@ def test_a_bogus_stamp_or_a_clock_step_drops_nothing_after_it(
 
     from tactile_contact.model.layout import load_layout
     from tactile_contact.msg import TaxelBatch
+    from tactile_contact.ros import contact_batches
     from tactile_contact.ros.common import DIAGNOSTICS_QOS
     from tactile_contact.ros.contact_reconstruction import ContactReconstructionNode
     from test.rosutil import batch_probe
@@ -109,6 +110,17 @@ def test_a_bogus_stamp_or_a_clock_step_drops_nothing_after_it(
         for j in range(3):  # a clock stepped back by 10 s: taken from the first frame on
             send(now - 10 * 10**9 + j * period, expect=True)
         assert node.batches.clock_steps == 2
+        # A bag of 10 frames (0.2 s) played in a loop: its second pass is older than the
+        # first by less than a second; after STALE_RUN of them in a row, a step, and the
+        # rest of the pass taken (every frame after the first pass was skipped before).
+        start = now + 60 * 10**9
+        for j in range(10):
+            send(start + j * period, expect=True)
+        stale = node.batches.stale_frames
+        for j in range(10):
+            send(start + j * period, expect=j >= contact_batches.STALE_RUN)
+        assert node.batches.stale_frames == stale + contact_batches.STALE_RUN
+        assert node.batches.clock_steps == 3
         bad = bytearray(_batch(now + 6 * period, patch, np.zeros(n)))
         pub.publish(TaxelBatch())  # (no patches: fine, nothing to solve)
         pub.publish(bytes(bad[: len(bad) // 2]))  # truncated: a bad batch
@@ -133,7 +145,8 @@ def test_a_bogus_stamp_or_a_clock_step_drops_nothing_after_it(
         values = {kv.key: kv.value for kv in status.values}
         assert status.level[0] == 1
         assert "last bad batch" in status.message and "clock step" in status.message
-        assert values["clock_steps"] == "2" and values["stale_frames"] == "1"
+        assert values["clock_steps"] == "3"
+        assert values["stale_frames"] == str(1 + contact_batches.STALE_RUN)
         assert values["bad_batches"] == "1"
     finally:
         executor.shutdown()

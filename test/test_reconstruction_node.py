@@ -720,8 +720,19 @@ def test_repeated_taxel_ids_stamps_and_parameter_sets(
     assert report.level[0] == 1 and "ahead of this node's clock" in report.message
     assert float(values["latency_p99_ms"]) < 60e3
     monkeypatch.setattr(patch_pipeline, "FRAMES_STOPPED_S", 0.2)
+    monkeypatch.setattr(patch_pipeline, "FRAMES_STOPPED_GAPS", 0.0)  # (this test's gaps)
     time.sleep(0.3)
     assert "no taxel frame for" in pipeline.diagnostics().message
+    # An untouched patch of a driver with idle_every: a frame every 5 s is no stop, 21 s is.
+    monkeypatch.setattr(patch_pipeline, "FRAMES_STOPPED_S", 3.0)
+    monkeypatch.setattr(patch_pipeline, "FRAMES_STOPPED_GAPS", 3.0)
+    now = time.monotonic()
+    for ago in (20.0, 15.0, 10.0, 5.0):
+        pipeline._took_frame(now - ago)
+    assert "no taxel frame for" not in pipeline.diagnostics().message
+    for ago in (36.0, 31.0, 26.0, 21.0):
+        pipeline._took_frame(now - ago)
+    assert "no taxel frame for 21 s" in pipeline.diagnostics().message
     for name, value in (("diagnostics_period", 10.0), ("bundles_dir", "/nonexistent")):
         (result,) = rig.node.set_parameters([Parameter(name, value=value)])
         assert not result.successful and "at start only" in result.reason
@@ -767,4 +778,19 @@ def test_a_layout_edit_that_makes_a_served_bundle_stale_is_said_at_once(
     layout.write_text(text)
     level, message, values = status_until(lambda lv, m: "layout file changed" not in m)
     assert level == 0 and values["bundle_problem"] == "", message
+    rig.close()
+
+
+def test_frames_before_the_first_clock_in_sim_time_are_not_said_ahead(
+    ros_context: object, bundles: Path
+) -> None:
+    """With use_sim_time and no /clock yet (a bag played with --clock starting), the node's
+    clock reads 0: a frame's latency is no age then, and is neither counted nor warned about
+    as stamped ahead (NTP advice for a clock that has not started)."""
+    rig = Rig(ros_context, bundles, use_sim_time=True)
+    pipeline = rig.node.pipelines["hexagon"]
+    assert rig.node.now_ns() == 0
+    rig.send(_delta_c(1.0, tuple(pipeline.recon.taxel_xy[30])), sec=int(time.time()))
+    assert pipeline.stats.stamps_ahead == 0 and len(pipeline.stats.latency_s) == 0
+    assert "ahead" not in pipeline.diagnostics().message
     rig.close()

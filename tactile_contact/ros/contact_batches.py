@@ -53,6 +53,10 @@ COALESCE_MAX = 8
 #: starts again from it. Why: one frame stamped in 2038 stopped its patch until then, and a
 #: clock stepped back by X s dropped X s of frames, with no word either time.
 CLOCK_STEP_NS = 1_000_000_000
+#: ... and more than this many frames of a patch in a row older than its newest are a step
+#: too (a frozen clock stamping 0, a bag shorter than a second played in a loop: every frame
+#: after the first pass was skipped), not frames out of a queue.
+STALE_RUN = 8
 
 
 def add_row(rows: ContactRows, pipe: Any, stamp_ns: int, result: Any) -> None:
@@ -128,6 +132,7 @@ class ContactBatches:
         self.stale_frames = 0
         self.clock_steps = 0
         self.last_clock_step = ""
+        self._stale_run: dict[str, int] = {}  # patch → frames skipped as stale in a row
         # Patches whose fusion deferred a re-solve, oldest first (PatchPipeline.frame).
         self._deferred: dict[str, Any] = {}
         #: Batches taken inside another's callback (their rows in its ContactArray).
@@ -263,10 +268,13 @@ class ContactBatches:
             stamp = view.stamps_ns[i]
             last = newest.get(name)
             if last is not None and stamp <= last:
-                if last - stamp <= CLOCK_STEP_NS:
+                run = self._stale_run.get(name, 0) + 1
+                if last - stamp <= CLOCK_STEP_NS and run <= STALE_RUN:
+                    self._stale_run[name] = run
                     self.stale_frames += 1  # a newer frame of it was solved already
                     continue
                 self.clock_steps += 1
+                pipe.end_contact()  # (its stamps went back: the contact followed ends)
                 self.last_clock_step = (
                     f"patch {name}: a frame stamped {(last - stamp) * 1e-9:.3g} s before the "
                     "newest one solved (a clock step, a restarted replay or a bogus stamp): "
@@ -274,6 +282,7 @@ class ContactBatches:
                 )
                 node.get_logger().warning(self.last_clock_step, throttle_duration_sec=5.0)
             newest[name] = stamp
+            self._stale_run[name] = 0
             a, b = off[i], off[i + 1]
             if quiet is None:
                 add_row(rows, pipe, stamp, full_frame(pipe, stamp, view, a, b))

@@ -62,9 +62,13 @@ CONTACT_END_S = 0.25
 #: more behind it (a bag replayed without use_sim_time: counted, logged once). Why: one
 #: frame stamped in 1969 made latency_p99_ms 1.8e12 on /diagnostics.
 LATENCY_RANGE_S = (-1.0, 60.0)
-#: A patch that had frames and then none for this long [s] is warned about (the driver
-#: sends an untouched patch at least every idle_every periods: ≤ 1 s at 50 Hz).
+#: A patch that had frames and then none for this long [s] is warned about, or for
+#: FRAMES_STOPPED_GAPS times the longest recent gap between its frames if longer: the driver
+#: sends an untouched patch every idle_every periods only (up to 1000 × 255 ms). The
+#: longest gap forgets by GAP_MEMORY a frame (a gap of 5 s weighs 0.07 s 300 frames later).
 FRAMES_STOPPED_S = 3.0
+FRAMES_STOPPED_GAPS = 3.0
+GAP_MEMORY = 0.99
 OUTPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
 QUIET_EVENTS = PublisherEventCallbacks(use_default_callbacks=False)
 
@@ -226,6 +230,7 @@ class PatchPipeline:
         # peak force [N]); None between contacts.
         self._contact: tuple[float, float, float] | None = None
         self._last_frame = -math.inf  # monotonic time of the last frame taken [s]
+        self._gap = 0.0  # the longest recent gap between frames [s] (GAP_MEMORY)
         p = self.name
 
         def publisher(msg_type: Any, topic: str, qos: QoSProfile) -> Any:
@@ -430,7 +435,7 @@ class PatchPipeline:
                 return quiet
         stats = self.stats
         stats.frames += 1
-        self._last_frame = time.monotonic()
+        self._took_frame(time.monotonic())
         t0 = time.perf_counter()
         try:
             n = len(ids)
@@ -563,7 +568,7 @@ class PatchPipeline:
         stats = self.stats
         stats.frames += 1
         stats.quiet += 1
-        self._last_frame = now
+        self._took_frame(now)
         if learnt:
             self.noise.learnt()
         stats.time_frame(*times)
@@ -601,7 +606,7 @@ class PatchPipeline:
         stats = self.stats
         stats.frames += 1
         stats.quiet += 1
-        self._last_frame = time.monotonic()
+        self._took_frame(time.monotonic())
         if not result.in_contact:
             noise.update(seen_frame.delta, seen_frame.ok, False)
         if fusion.pending:
@@ -650,6 +655,12 @@ class PatchPipeline:
         stats.time("publish", time.perf_counter() - t2)
         return result if ok else None
 
+    def _took_frame(self, now: float) -> None:
+        """Note a frame taken at monotonic ``now`` [s] (the gap since the last one)."""
+        gap = now - self._last_frame
+        self._gap = max(gap, self._gap * GAP_MEMORY) if gap < math.inf else 0.0
+        self._last_frame = now
+
     def latency_ok(self, latency: float) -> bool:
         """Whether a frame's latency [s] is an age (LATENCY_RANGE_S) to count; if not, it is
         counted and said (a stamp ahead: warned; one old: logged once)."""
@@ -657,6 +668,9 @@ class PatchPipeline:
         if low <= latency <= high:
             return True
         s = self.stats
+        node = self.node
+        if getattr(node, "_sim_time", False) and node.now_ns() == 0:
+            return False  # (sim time before the first /clock: no age to tell)
         if latency < low:
             s.stamps_ahead += 1
             self._fault(
@@ -680,6 +694,10 @@ class PatchPipeline:
         if not math.isfinite(force):
             return  # (refused by check_result, said there)
         c = self._contact
+        if c is not None and stamp < c[1]:
+            # (the stamps went back — a clock step, a replay restarted: that contact ends)
+            self.end_contact()
+            c = None
         if result.in_contact:
             self.stats.contact_frames += 1
             self.stats.peak_force = max(self.stats.peak_force, force)
@@ -885,9 +903,9 @@ class PatchPipeline:
             level, message = WARN, s.last_error
         if s.frames == 0:
             level, message = WARN, "no taxel frames received yet"
-        else:
+        elif math.isfinite(self._last_frame):  # (frames of another patch only: never taken)
             quiet_for = time.monotonic() - self._last_frame
-            if quiet_for > FRAMES_STOPPED_S:
+            if quiet_for > max(FRAMES_STOPPED_S, FRAMES_STOPPED_GAPS * self._gap):
                 level = WARN
                 message = f"no taxel frame for {quiet_for:.0f} s; {message}"
         if self.bundle_problem:
