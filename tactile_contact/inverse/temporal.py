@@ -82,12 +82,12 @@ RESOLVE_EVERY = 25
 #: of 4, 8, 16, 32 looked at most every third frame: a press whose mean clears the threshold
 #: from its 8th frame waited for a window of 8 or 16 and the look's turn — bench_time's held
 #: presses ≤ 1 N, five draws each, calibrated, 0.5 N missed after 10 frames: point truth 13 →
-#: 9 of 120, 3 mm electrodes 21 → 11; after 5 frames 46 → 23 and 33 → 28; idle frames
+#: 10 of 120, 3 mm electrodes 21 → 11; after 5 frames 46 → 23 and 33 → 28; idle frames
 #: ≈ 1.5 µs dearer.)
 IDLE_WINDOWS = (4, 6, 8, 10, 12, 16, 32)
 IDLE_TRIGGER = 1e-2
-#: After a look the scan picked the scan picked, at a window of w frames, none for w // IDLE_BACKOFF
-#: frames: a look that found nothing is worth repeating once the window holds new frames. A
+#: After a look the scan picked, at a window of w frames, none for w // IDLE_BACKOFF frames:
+#: a look that found nothing is worth repeating once the window holds new frames. A
 #: light object resting on a patch near the threshold reads as a window that stands out
 #: frame after frame: a 0.18 N sphere held between two taxels, 2900 frames, cost 1176 solves
 #: and 276 µs a frame looked at every frame, 527 and 114 µs every third frame (the old rule),
