@@ -29,6 +29,9 @@ setup(
         "python-can>=4.3",
         "tqdm>=4.60",
         "threadpoolctl>=3.1",
+        # (the round fit, the detector, the fusion and the idle gate are compiled kernels;
+        # tactile-contact-build imports them)
+        "numba>=0.59",
     ],
     extras_require={
         "demo": ["matplotlib>=3.7"],
